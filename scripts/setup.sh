@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Set-up on a fresh machine: system library for Mitsuba, PyTorch, then brfgs itself.
+# Idempotent: steps that are already done are skipped. Installs into the active Python.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+
+# 1. Mitsuba's CPU (llvm_*) variants need LLVM >= 16; Debian 12 ships 15 by default.
+if ! ls /usr/lib/llvm-19/lib/libLLVM*.so* >/dev/null 2>&1; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    echo "setup: installing libllvm19 (for Mitsuba)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
+  else
+    echo "setup: warning: libllvm19 missing and apt-get unavailable; 'brfgs simulate' will not run" >&2
+  fi
+fi
+
+# 2. PyTorch: keep an installed torch (GPU machines have their CUDA build); otherwise the CPU build.
+if ! "$PY" -c "import torch" 2>/dev/null; then
+  echo "setup: installing torch==2.13.0 (CPU build)"
+  "$PY" -m pip install -q torch==2.13.0
+fi
+
+# 3. brfgs and its dependencies (pyproject.toml), editable, with the test extras.
+echo "setup: installing brfgs"
+"$PY" -m pip install -q -e ".[test]" 2>&1 | grep -v "^WARNING: Location" || true
+"$PY" -c "import brfgs" || { echo "setup: brfgs failed to install" >&2; exit 1; }

@@ -1,0 +1,5 @@
+import sys
+
+from brfgs.cli import main
+
+sys.exit(main())

@@ -1,0 +1,75 @@
+"""The ``brfgs`` command line: thin commands over the library.
+
+One module per pipeline step lives beside this file (``inspect.py``, ``simulate.py``,
+``kernels.py``, ...). Each defines ``register(app)`` that adds its commands to the
+Typer app. Command modules import heavy libraries (torch, mitsuba, pycolmap) inside
+the command functions so that ``brfgs --help`` stays fast and pycolmap is never
+imported before zlib (see brfgs.init).
+
+User errors (:class:`brfgs.errors.UserError`) are printed without traceback and the
+process exits with status 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+
+import typer
+
+from brfgs.errors import UserError
+
+app = typer.Typer(
+    name="brfgs",
+    help="Hyperspectral BRF modelling with 3D Gaussian splatting (BRF-GS).",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+# Command modules in pipeline order; each defines register(app).
+COMMAND_MODULES = [
+    "brfgs.cli.demo",        # demo: the whole pipeline on a simulated scene
+    "brfgs.cli.inspect",     # inspect: read + validate a scene, summary and polar plot
+    "brfgs.cli.simulate",    # simulate: Mitsuba scenes with truth
+    "brfgs.cli.bands",       # select-bands: EFC band selection
+    "brfgs.cli.init",        # init: SfM / known poses -> sparse points
+    "brfgs.cli.kernels",     # kernels: BRDF kernel plots and CSV
+    "brfgs.cli.train",       # train / evaluate / ablate
+    "brfgs.cli.analysis",    # render / brf / products / export
+    "brfgs.cli.bench",       # bench: speed and memory benchmarks
+]
+
+
+
+@app.callback()
+def _root() -> None:
+    """Hyperspectral BRF modelling with 3D Gaussian splatting (BRF-GS)."""
+
+
+for _name in COMMAND_MODULES:
+    # A pipeline step whose module is not part of this build is simply not offered.
+    if importlib.util.find_spec(_name) is not None:
+        importlib.import_module(_name).register(app)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``brfgs`` console script; returns the exit status.
+
+    Usage errors (click) exit 2, user errors (:class:`UserError`) print one message and
+    exit 2, Ctrl-C exits 130 (long commands checkpoint before that).
+    """
+    try:
+        app(args=argv, prog_name="brfgs")
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except UserError as exc:
+        print(f"brfgs: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("brfgs: interrupted", file=sys.stderr)
+        return 130
+    return 0

@@ -1,0 +1,37 @@
+"""``brfgs inspect SCENE``: validate a scene, print a summary table, plot the view directions."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from brfgs.cli import _options as opt
+
+
+def inspect_cmd(
+    scene: Path = opt.SceneArg,
+    out: Path = typer.Option(None, "--out", "-o",
+                             help="Folder for views_polar.png and summary.json [default: ./inspect_<scene>]."),
+    downscale: int = opt.DownscaleOpt,
+    value_range: str = opt.ValueRangeOpt,
+    split_seed: int = opt.SplitSeedOpt,
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Read and validate a scene; print frames, bands, split, angles, per-band noise/SNR and NaN counts."""
+    from brfgs.data.summary import format_summary, plot_views, summarize
+
+    sc = opt.load_scene(scene, downscale, value_range, split_seed)
+    out = out if out is not None else Path.cwd() / f"inspect_{sc.name}"
+    opt.check_output_dir(out, sc.root, overwrite=True)
+    summary = summarize(sc, progress=not quiet)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary.to_json(), indent=1))
+    plot_views(sc, out / "views_polar.png")
+    typer.echo(format_summary(summary))
+    typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("inspect")(inspect_cmd)

@@ -1,0 +1,477 @@
+"""Scene reader for the data-set layout of ``../shared/conventions.md``.
+
+A scene folder holds ``transforms.json`` (cameras, wavelengths, sun angles, frames),
+``images/`` with one reflectance cube per frame (ENVI, ``.npy`` [H, W, B] or multi-band
+GeoTIFF) and optionally ``calibration/dark_*`` dark frames and ``truth/``.
+
+:func:`read_scene` parses and validates the metadata and every cube header at once
+(cheap), and returns a :class:`Scene` whose :meth:`Scene.load_image` reads one cube
+on demand: band subset, region of interest and integer area-average downscaling are
+applied while reading row blocks from a memory map, so a full-resolution cube is never
+held in memory. Pixel values are checked as they are read (``value_range``), NaN/Inf
+are kept as NaN and excluded by :meth:`Scene.valid_mask`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from brfgs.data import validation as V
+from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
+from brfgs.data.cube_io import envi_image_path, read_envi_header
+from brfgs.errors import UserError
+
+TRANSFORMS = "transforms.json"
+DEFAULT_VALUE_RANGE = (-0.5, 10.0)
+TEST_EVERY = 7  # 6 train : 1 test
+CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
+
+
+@dataclass
+class Frame:
+    """One image of the acquisition."""
+
+    name: str
+    path: Path                      # cube file (header for ENVI)
+    c2w: np.ndarray                 # [4, 4] OpenGL camera-to-world
+    view_zenith_deg: float
+    view_azimuth_deg: float
+    split: str                      # "train" | "test"
+    split_given: bool = False       # True if transforms.json fixed it
+
+
+@dataclass
+class _CubeSource:
+    """How to read one cube: format and full-resolution shape."""
+
+    kind: str                       # "envi" | "npy" | "tiff"
+    path: Path
+    lines: int
+    samples: int
+    bands: int
+    band_axis_first: bool = False   # GeoTIFF stored as [B, H, W]
+
+
+@dataclass
+class Scene:
+    """A validated scene; cubes are read lazily. See the module docstring."""
+
+    root: Path
+    name: str
+    wavelengths_nm: np.ndarray              # [B] after band subset
+    fwhm_nm: np.ndarray | None              # [B] or None
+    band_indices: np.ndarray                # [B] indices into the file's bands
+    intrinsics: Intrinsics                  # after ROI and downscale
+    sun_zenith_deg: float
+    sun_azimuth_deg: float
+    frames: list[Frame]
+    dark_sigma: np.ndarray                  # [B] σ_b (reflectance units)
+    dark_sigma_source: str                  # "dark_frames" | "transforms.json" | "estimated"
+    downscale: int = 1
+    roi: tuple[int, int, int, int] | None = None   # (x0, y0, w, h) in full-resolution pixels
+    value_range: tuple[float, float] = DEFAULT_VALUE_RANGE
+    split_seed: int = 0
+    full_intrinsics: Intrinsics | None = None
+    _sources: list[_CubeSource] = field(default_factory=list, repr=False)
+    invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
+
+    # ----- geometry -------------------------------------------------------------------------------
+    @property
+    def width(self) -> int:
+        return self.intrinsics.w
+
+    @property
+    def height(self) -> int:
+        return self.intrinsics.h
+
+    @property
+    def n_bands(self) -> int:
+        return len(self.wavelengths_nm)
+
+    def K(self) -> np.ndarray:
+        """Intrinsic matrix [3, 3] of the loaded images."""
+        return self.intrinsics.K()
+
+    def viewmat(self, i: int) -> np.ndarray:
+        """World-to-camera [4, 4] with OpenCV axes (what brfgs.render.rasterize takes)."""
+        return viewmat_from_c2w(self.frames[i].c2w)
+
+    def camera_centre(self, i: int) -> np.ndarray:
+        """Camera centre [3] of frame i (metres, ENU)."""
+        return camera_centre(self.frames[i].c2w)
+
+    def sun_direction(self) -> np.ndarray:
+        """Unit vector [3] toward the sun (ENU)."""
+        from brfgs.data.angles import direction_from_angles_deg
+
+        return direction_from_angles_deg(self.sun_zenith_deg, self.sun_azimuth_deg)
+
+    def band_index_nearest(self, wavelength_nm: float) -> int:
+        """Index (into the loaded bands) of the band nearest ``wavelength_nm``."""
+        return int(np.argmin(np.abs(self.wavelengths_nm - wavelength_nm)))
+
+    @property
+    def train_indices(self) -> list[int]:
+        return [i for i, f in enumerate(self.frames) if f.split == "train"]
+
+    @property
+    def test_indices(self) -> list[int]:
+        return [i for i, f in enumerate(self.frames) if f.split == "test"]
+
+    def split_record(self) -> dict:
+        """The split as recorded in run folders and metrics files."""
+        return {"seed": self.split_seed, "rule": "6:1 train:test, per-frame 'split' honoured",
+                "train": [self.frames[i].name for i in self.train_indices],
+                "test": [self.frames[i].name for i in self.test_indices]}
+
+    @property
+    def truth_dir(self) -> Path | None:
+        """``<scene>/truth`` for simulated scenes (never read for training), else None."""
+        p = self.root / "truth"
+        return p if p.is_dir() else None
+
+    def frame_index(self, name: str) -> int:
+        for i, f in enumerate(self.frames):
+            if f.name == name:
+                return i
+        raise UserError(f"no frame named {name!r}; frames are {[f.name for f in self.frames][:8]}...",
+                        file=self.root / TRANSFORMS, field="frames")
+
+    # ----- pixels ---------------------------------------------------------------------------------
+    def load_image(self, i: int, bands: list[int] | np.ndarray | None = None) -> np.ndarray:
+        """Reflectance cube of frame ``i`` as float32 [H, W, b].
+
+        ``bands`` indexes the scene's (already subset) bands; default all. Downscale and
+        ROI are applied while reading; a downscaled pixel containing a NaN/Inf input pixel is
+        NaN. Raises UserError for values outside ``value_range``.
+        """
+        src = self._sources[i]
+        file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
+        cube = _read_block_averaged(src, file_bands, self.roi, self.downscale, self.value_range,
+                                    self.frames[i].name)
+        n_bad = int((~np.isfinite(cube)).any(-1).sum())
+        if bands is None:
+            self.invalid_counts[self.frames[i].name] = n_bad
+        if n_bad:
+            cube[~np.isfinite(cube)] = np.nan
+        return cube
+
+    def valid_mask(self, i: int, image: np.ndarray | None = None) -> np.ndarray:
+        """Bool [H, W]: pixels whose every band is finite (pass ``image`` to avoid re-reading)."""
+        img = self.load_image(i) if image is None else image
+        return np.isfinite(img).all(-1)
+
+
+# ---------------------------------------------------------------------------------------------------
+def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.ndarray | None = None,
+               roi: tuple[int, int, int, int] | None = None,
+               value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0) -> Scene:
+    """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
+
+    Args:
+        downscale: integer area-average factor applied while reading.
+        bands: indices of the bands to keep (default all).
+        roi: (x0, y0, w, h) region of interest in full-resolution pixels.
+        value_range: plausible reflectance range; finite values outside it are an error.
+        split_seed: seed of the deterministic 6:1 train/test split.
+    """
+    root = Path(path)
+    tf = root / TRANSFORMS
+    if not root.is_dir():
+        raise UserError("scene folder not found", file=root)
+    if not tf.is_file():
+        raise UserError(f"no {TRANSFORMS} in the scene folder", file=root)
+    try:
+        meta = json.loads(tf.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"not valid JSON ({exc})", file=tf) from None
+    if not isinstance(meta, dict):
+        raise UserError("expected a JSON object at the top level", file=tf)
+    if not isinstance(downscale, int) or downscale < 1:
+        raise UserError(f"downscale must be an integer >= 1, got {downscale!r}", field="downscale")
+    lo, hi = value_range
+    if not lo < hi:
+        raise UserError(f"value range must have min < max, got {value_range}", field="value_range")
+
+    def req(key):
+        if key not in meta:
+            raise UserError("required field missing", file=tf, field=key)
+        return meta[key]
+
+    model = meta.get("camera_model", "PINHOLE")
+    if model != "PINHOLE":
+        raise UserError(f"camera model {model!r} not supported, expected 'PINHOLE'", file=tf, field="camera_model")
+    w = V.number(req("w"), tf, "w", lo=1, integer=True)
+    h = V.number(req("h"), tf, "h", lo=1, integer=True)
+    fl_x = V.number(req("fl_x"), tf, "fl_x", lo=1e-9)
+    fl_y = V.number(req("fl_y"), tf, "fl_y", lo=1e-9)
+    cx = V.number(req("cx"), tf, "cx")
+    cy = V.number(req("cy"), tf, "cy")
+    if not 0 < cx < w:
+        raise UserError(f"principal point cx = {cx:g} lies outside the image width w = {w}", file=tf, field="cx")
+    if not 0 < cy < h:
+        raise UserError(f"principal point cy = {cy:g} lies outside the image height h = {h}", file=tf, field="cy")
+    full_intr = Intrinsics(fl_x, fl_y, cx, cy, w, h)
+
+    wl_all = V.wavelengths(req("wavelengths_nm"), tf, "wavelengths_nm")
+    n_bands_file = len(wl_all)
+    fwhm_all = None
+    if meta.get("fwhm_nm") is not None:
+        fwhm_all = V.number_list(meta["fwhm_nm"], tf, "fwhm_nm", length=n_bands_file)
+    sun_zen = V.number(req("sun_zenith_deg"), tf, "sun_zenith_deg", lo=0.0, hi=89.999)
+    sun_az = V.number(req("sun_azimuth_deg"), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
+
+    if bands is None:
+        band_idx = np.arange(n_bands_file)
+    else:
+        band_idx = np.asarray(bands, dtype=int).reshape(-1)
+        if band_idx.size == 0 or band_idx.min() < 0 or band_idx.max() >= n_bands_file:
+            raise UserError(f"band indices must lie in 0..{n_bands_file - 1}", field="bands")
+        if np.any(np.diff(band_idx) <= 0):
+            raise UserError("band indices must be strictly increasing", field="bands")
+
+    if roi is not None:
+        x0, y0, rw, rh = (int(v) for v in roi)
+        if x0 < 0 or y0 < 0 or rw < 1 or rh < 1 or x0 + rw > w or y0 + rh > h:
+            raise UserError(f"region of interest {roi} does not fit the {w}x{h} image", field="roi")
+        intr = full_intr.cropped(x0, y0, rw, rh)
+        roi = (x0, y0, rw, rh)
+    else:
+        intr = full_intr
+    if intr.w // downscale < 1 or intr.h // downscale < 1:
+        raise UserError(f"downscale {downscale} leaves no pixels of a {intr.w}x{intr.h} image", field="downscale")
+    intr = intr.scaled(downscale)
+
+    frames_meta = req("frames")
+    if not isinstance(frames_meta, list):
+        raise UserError("expected a list of frames", file=tf, field="frames")
+    if len(frames_meta) < V.MIN_FRAMES:
+        raise UserError(f"found {len(frames_meta)} frames, at least {V.MIN_FRAMES} are needed for a "
+                        f"multi-angle reconstruction", file=tf, field="frames")
+
+    frames: list[Frame] = []
+    sources: list[_CubeSource] = []
+    names: set[str] = set()
+    for k, fm in enumerate(frames_meta):
+        fld = f"frames[{k}]"
+        if not isinstance(fm, dict):
+            raise UserError("expected an object", file=tf, field=fld)
+        if "file_path" not in fm:
+            raise UserError("required field missing", file=tf, field=f"{fld}.file_path")
+        cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path")
+        name = Path(fm["file_path"]).stem
+        if name in names:
+            raise UserError(f"duplicate frame name {name!r}", file=tf, field=f"{fld}.file_path")
+        names.add(name)
+        fld = f"frames[{k}] ('{name}')"
+        vz = va = None
+        if fm.get("view_zenith_deg") is not None:
+            vz = V.number(fm["view_zenith_deg"], tf, f"{fld}.view_zenith_deg", lo=0.0, hi=89.999)
+        if fm.get("view_azimuth_deg") is not None:
+            va = V.number(fm["view_azimuth_deg"], tf, f"{fld}.view_azimuth_deg", lo=-360.0, hi=360.0)
+        if fm.get("transform_matrix") is not None:
+            c2w = V.transform_matrix(fm["transform_matrix"], tf, f"{fld}.transform_matrix")
+        else:
+            if vz is None or va is None or fm.get("distance_m") is None:
+                raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
+                                "distance_m", file=tf, field=fld)
+            dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=1e-6)
+            c2w = pose_from_view_angles(vz, va, dist)
+        if vz is None or va is None:  # derive nominal angles from the camera centre
+            from brfgs.data.angles import angles_from_direction
+
+            zr, ar = angles_from_direction(c2w[:3, 3])
+            vz, va = float(np.degrees(zr)), float(np.degrees(ar))
+        split = fm.get("split")
+        if split is not None and split not in ("train", "test"):
+            raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
+        src = _open_cube(cube_path, wl_all, tf, name)
+        if (src.lines, src.samples) != (h, w):
+            raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
+                            f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
+        frames.append(Frame(name, cube_path, c2w, vz, va, split or "", split is not None))
+        sources.append(src)
+
+    _assign_split(frames, split_seed)
+    if not any(f.split == "train" for f in frames):
+        raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
+                        field="frames[].split")
+
+    sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, value_range)
+    scene = Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
+                  fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
+                  intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
+                  dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
+                  value_range=(float(lo), float(hi)), split_seed=split_seed, full_intrinsics=full_intr,
+                  _sources=sources)
+    return scene
+
+
+def _assign_split(frames: list[Frame], seed: int) -> None:
+    """Deterministic 6:1 split; frames with a given split keep it."""
+    n = len(frames)
+    n_test_target = max(1, round(n / TEST_EVERY))
+    n_test_given = sum(f.split == "test" for f in frames)
+    free = [i for i, f in enumerate(frames) if not f.split_given]
+    order = np.random.default_rng(seed).permutation(len(free))
+    n_test_free = min(max(0, n_test_target - n_test_given), max(0, len(free) - 1))
+    for rank, j in enumerate(order):
+        frames[free[j]].split = "test" if rank < n_test_free else "train"
+
+
+def _open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str) -> _CubeSource:
+    """Header-level checks of one cube; returns how to read it."""
+    n_bands = len(wl)
+    suffix = path.suffix.lower()
+    if suffix == ".hdr":
+        if not path.is_file():
+            raise UserError(f"frame '{frame}': cube header not found", file=path)
+        hdr = read_envi_header(path)
+        img = envi_image_path(path)
+        if img is None:
+            raise UserError(f"frame '{frame}': ENVI data file (.img) next to the header not found", file=path)
+        for key in ("lines", "samples", "bands", "data type", "interleave"):
+            if key not in hdr:
+                raise UserError(f"frame '{frame}': required header field missing", file=path, field=key)
+        V.header_matches(hdr, wl, path, tf, n_bands)
+        lines, samples = int(hdr["lines"]), int(hdr["samples"])
+        try:
+            import spectral.io.envi as envi
+
+            obj = envi.open(str(path), str(img))
+        except Exception as exc:
+            raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
+        expected = lines * samples * n_bands * obj.sample_size + int(hdr.get("header offset", 0))
+        if img.stat().st_size < expected:
+            raise UserError(f"frame '{frame}': data file is {img.stat().st_size} bytes, the header needs "
+                            f"{expected}", file=img)
+        return _CubeSource("envi", path, lines, samples, n_bands)
+    if not path.is_file():
+        raise UserError(f"frame '{frame}': cube file not found", file=path)
+    if suffix == ".npy":
+        try:
+            arr = np.load(path, mmap_mode="r")
+        except Exception as exc:
+            raise UserError(f"frame '{frame}': unreadable .npy cube ({exc})", file=path) from None
+        if arr.ndim != 3 or arr.shape[2] != n_bands:
+            raise UserError(f"frame '{frame}': expected an array [H, W, {n_bands}], found shape {arr.shape}",
+                            file=path, field="shape")
+        return _CubeSource("npy", path, arr.shape[0], arr.shape[1], n_bands)
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        try:
+            with tifffile.TiffFile(path) as t:
+                shape = t.series[0].shape
+        except Exception as exc:
+            raise UserError(f"frame '{frame}': unreadable GeoTIFF ({exc})", file=path) from None
+        if len(shape) == 3 and shape[0] == n_bands and shape[2] != n_bands:
+            return _CubeSource("tiff", path, shape[1], shape[2], n_bands, band_axis_first=True)
+        if len(shape) == 3 and shape[2] == n_bands:
+            return _CubeSource("tiff", path, shape[0], shape[1], n_bands)
+        raise UserError(f"frame '{frame}': expected {n_bands} bands, found shape {shape}", file=path, field="shape")
+    raise UserError(f"frame '{frame}': unsupported cube format {suffix!r} (expected .hdr, .npy, .tif)",
+                    file=tf, field="file_path")
+
+
+def _raw_array(src: _CubeSource):
+    """A lazily indexable [lines, samples, bands] view of the cube (memory map where possible)."""
+    if src.kind == "envi":
+        import spectral.io.envi as envi
+
+        return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
+    if src.kind == "npy":
+        return np.load(src.path, mmap_mode="r")
+    import tifffile
+
+    try:
+        arr = tifffile.memmap(src.path, mode="r")
+    except Exception:  # compressed or tiled TIFF: read whole (small files in practice)
+        arr = tifffile.imread(src.path)
+    return np.moveaxis(arr, 0, -1) if src.band_axis_first else arr
+
+
+def _read_block_averaged(src: _CubeSource, file_bands: np.ndarray, roi, factor: int,
+                         value_range: tuple[float, float], frame: str) -> np.ndarray:
+    """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
+
+    The memory map is reopened for each block and dropped after it, so the pages it touched
+    leave the process's resident set: peak memory is one block, not the cube.
+    """
+    x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
+    out_h, out_w = rh // factor, rw // factor
+    nb = len(file_bands)
+    out = np.empty((out_h, out_w, nb), dtype=np.float32)
+    row_bytes = src.samples * src.bands * 4 * factor
+    rows_per_block = max(1, CHUNK_BYTES // max(1, row_bytes))
+    contiguous = nb == src.bands and np.array_equal(file_bands, np.arange(src.bands))
+    try:
+        for r0 in range(0, out_h, rows_per_block):
+            r1 = min(out_h, r0 + rows_per_block)
+            raw = _raw_array(src)
+            rows = slice(y0 + r0 * factor, y0 + r1 * factor)
+            cols = slice(x0, x0 + out_w * factor)
+            block = raw[rows, cols] if contiguous else raw[rows, cols][:, :, file_bands]
+            block = np.asarray(block, dtype=np.float32)
+            del raw
+            V.pixel_range(block, value_range, src.path, frame)
+            if factor > 1:
+                block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
+            out[r0:r1] = block
+    except UserError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise UserError(f"frame '{frame}': could not read cube data ({exc})", file=src.path) from None
+    return out
+
+
+def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[_CubeSource],
+                value_range) -> tuple[np.ndarray, str]:
+    """σ_b [B]: std over dark frames and pixels; else ``dark_sigma``; else estimated from the images."""
+    n_bands = len(wl)
+    listed = meta.get("dark_frames")
+    if listed is not None:
+        if not isinstance(listed, list):
+            raise UserError("expected a list of paths", file=tf, field="dark_frames")
+        paths = [V.path_inside(root, p, tf, f"dark_frames[{i}]") for i, p in enumerate(listed)]
+    else:
+        paths = sorted((root / "calibration").glob("dark_*.hdr")) if (root / "calibration").is_dir() else []
+    if paths:
+        s1 = np.zeros(n_bands)
+        s2 = np.zeros(n_bands)
+        n = 0
+        for p in paths:
+            src = _open_cube(p, wl, tf, f"dark frame {p.name}")
+            cube = _read_block_averaged(src, np.arange(n_bands), None, 1, (-np.inf, np.inf), p.name)
+            cube = cube.reshape(-1, n_bands).astype(np.float64)
+            cube = cube[np.isfinite(cube).all(1)]
+            s1 += cube.sum(0)
+            s2 += (cube * cube).sum(0)
+            n += len(cube)
+        if n < 2:
+            raise UserError("dark frames contain no finite pixels", file=paths[0])
+        var = np.maximum(s2 / n - (s1 / n) ** 2, 0.0) * n / (n - 1)
+        return np.sqrt(var), "dark_frames"
+    if meta.get("dark_sigma") is not None:
+        sig = V.number_list(meta["dark_sigma"], tf, "dark_sigma", length=n_bands)
+        if np.any(sig < 0):
+            raise UserError("dark_sigma values must be >= 0", file=tf, field="dark_sigma")
+        return sig, "transforms.json"
+    return _estimate_sigma(sources[: min(3, len(sources))], n_bands, value_range), "estimated"
+
+
+def _estimate_sigma(sources: list[_CubeSource], n_bands: int, value_range) -> np.ndarray:
+    """Per-band noise σ from images (no dark frames): robust MAD of a 3×3 Laplacian residual (Immerkær 1996)."""
+    ests = []
+    for src in sources:
+        cube = _read_block_averaged(src, np.arange(n_bands), None, 1, value_range, src.path.stem)
+        lap = (4 * cube[1:-1, 1:-1] - cube[:-2, 1:-1] - cube[2:, 1:-1] - cube[1:-1, :-2] - cube[1:-1, 2:])
+        lap = lap.reshape(-1, n_bands)
+        lap = lap[np.isfinite(lap).all(1)]
+        # std of 4x - 4 neighbours for i.i.d. noise σ is sqrt(20) σ; MAD → σ via 1.4826
+        ests.append(1.4826 * np.median(np.abs(lap - np.median(lap, 0)), 0) / np.sqrt(20.0))
+    return np.median(np.stack(ests), 0)

@@ -1,0 +1,140 @@
+"""Scene summary for ``brfgs inspect``: acquisition geometry, noise and data quality.
+
+Reads every cube once (streamed, so the pixel-range check covers every full-resolution
+pixel) and reports per-band mean reflectance, σ_b and an SNR estimate, NaN/Inf counts
+and the angular coverage of the views relative to the sun.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from brfgs.data.angles import direction_from_angles_deg
+from brfgs.data.scene import Scene
+
+
+@dataclass
+class SceneSummary:
+    name: str
+    n_frames: int
+    n_train: int
+    n_test: int
+    n_bands: int
+    wavelength_range_nm: tuple[float, float]
+    width: int
+    height: int
+    sun_zenith_deg: float
+    sun_azimuth_deg: float
+    view_zenith_range_deg: tuple[float, float]
+    n_azimuth_sectors: int                      # occupied 30° azimuth sectors of the off-nadir views
+    phase_angle_range_deg: tuple[float, float]  # angle between the sun and view directions
+    nearest_hotspot_deg: float                  # smallest angle of a view to the hotspot direction
+    nearest_specular_deg: float                 # smallest angle of a view to the specular direction
+    sigma_source: str
+    wavelengths_nm: list[float] = field(default_factory=list)
+    sigma: list[float] = field(default_factory=list)
+    mean_reflectance: list[float] = field(default_factory=list)
+    snr: list[float] = field(default_factory=list)
+    invalid_pixels: dict[str, int] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
+    """Summary of ``scene``; reads every frame once."""
+    from tqdm import tqdm
+
+    B = scene.n_bands
+    s1 = np.zeros(B)
+    n = 0
+    for i in tqdm(range(len(scene.frames)), desc="reading cubes", unit="frame", disable=not progress):
+        img = scene.load_image(i).reshape(-1, B)
+        ok = np.isfinite(img).all(1)
+        s1 += img[ok].sum(0, dtype=np.float64)
+        n += int(ok.sum())
+    mean = s1 / max(n, 1)
+    sigma = scene.dark_sigma
+    snr = np.where(sigma > 0, mean / np.maximum(sigma, 1e-12), np.inf)
+
+    vz = np.array([f.view_zenith_deg for f in scene.frames])
+    va = np.array([f.view_azimuth_deg for f in scene.frames])
+    views = direction_from_angles_deg(vz, va)                                  # [F, 3]
+    sun = direction_from_angles_deg(scene.sun_zenith_deg, scene.sun_azimuth_deg)  # [3]
+    spec = direction_from_angles_deg(scene.sun_zenith_deg, scene.sun_azimuth_deg + 180.0)
+    phase = np.degrees(np.arccos(np.clip(views @ sun, -1, 1)))
+    to_spec = np.degrees(np.arccos(np.clip(views @ spec, -1, 1)))
+    off = vz > 1.0
+    sectors = np.unique(np.floor(np.remainder(va[off] + 15.0, 360.0) / 30.0)).size if off.any() else 0
+    return SceneSummary(
+        name=scene.name, n_frames=len(scene.frames), n_train=len(scene.train_indices),
+        n_test=len(scene.test_indices), n_bands=B,
+        wavelength_range_nm=(float(scene.wavelengths_nm[0]), float(scene.wavelengths_nm[-1])),
+        width=scene.width, height=scene.height, sun_zenith_deg=scene.sun_zenith_deg,
+        sun_azimuth_deg=scene.sun_azimuth_deg, view_zenith_range_deg=(float(vz.min()), float(vz.max())),
+        n_azimuth_sectors=int(sectors), phase_angle_range_deg=(float(phase.min()), float(phase.max())),
+        nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
+        sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
+        sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
+        invalid_pixels=dict(scene.invalid_counts))
+
+
+def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
+    """Human-readable table of a summary."""
+    lines = [
+        f"scene            {s.name}",
+        f"frames           {s.n_frames} ({s.n_train} train / {s.n_test} test)",
+        f"bands            {s.n_bands}, {s.wavelength_range_nm[0]:.1f}-{s.wavelength_range_nm[1]:.1f} nm",
+        f"image size       {s.width} x {s.height} px",
+        f"sun              zenith {s.sun_zenith_deg:.1f} deg, azimuth {s.sun_azimuth_deg:.1f} deg",
+        f"view zenith      {s.view_zenith_range_deg[0]:.1f}-{s.view_zenith_range_deg[1]:.1f} deg, "
+        f"{s.n_azimuth_sectors}/12 azimuth sectors of 30 deg",
+        f"phase angle      {s.phase_angle_range_deg[0]:.1f}-{s.phase_angle_range_deg[1]:.1f} deg "
+        f"(nearest view to hotspot {s.nearest_hotspot_deg:.1f} deg, to specular {s.nearest_specular_deg:.1f} deg)",
+        f"noise sigma      from {s.sigma_source}",
+    ]
+    n_bad = sum(s.invalid_pixels.values())
+    bad_frames = {k: v for k, v in s.invalid_pixels.items() if v}
+    lines.append(f"NaN/Inf pixels   {n_bad} in {len(bad_frames)} frame(s)"
+                 + (": " + ", ".join(f"{k}={v}" for k, v in list(bad_frames.items())[:6]) if bad_frames else "")
+                 + (" (masked out of every loss and metric)" if n_bad else ""))
+    lines.append("")
+    lines.append(f"{'band':>5} {'wavelength_nm':>14} {'mean_refl':>10} {'sigma':>10} {'snr':>9}")
+    idx = np.unique(np.linspace(0, s.n_bands - 1, min(max_band_rows, s.n_bands)).round().astype(int))
+    for i in idx:
+        lines.append(f"{i:>5} {s.wavelengths_nm[i]:>14.1f} {s.mean_reflectance[i]:>10.4f} "
+                     f"{s.sigma[i]:>10.5f} {s.snr[i]:>9.1f}")
+    if len(idx) < s.n_bands:
+        lines.append(f"({len(idx)} of {s.n_bands} bands shown; all bands in summary.json)")
+    return "\n".join(lines)
+
+
+def plot_views(scene: Scene, path) -> None:
+    """Polar plot of the view directions (zenith as radius, azimuth clockwise from north), sun marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(6.5, 5.5))
+    ax = fig.add_subplot(projection="polar")
+    ax.set_theta_zero_location("N")
+    ax.set_theta_direction(-1)
+    for f in scene.frames:
+        marker, color = ("o", "tab:blue") if f.split == "train" else ("s", "tab:orange")
+        ax.plot(np.radians(f.view_azimuth_deg), f.view_zenith_deg, marker, color=color, ms=6)
+    ax.plot([], [], "o", color="tab:blue", label="train view")
+    ax.plot([], [], "s", color="tab:orange", label="test view")
+    ax.plot(np.radians(scene.sun_azimuth_deg), scene.sun_zenith_deg, "*", color="red", ms=16, label="sun")
+    ax.plot(np.radians(scene.sun_azimuth_deg + 180), scene.sun_zenith_deg, "x", color="red", ms=9,
+            label="specular direction")
+    rmax = max(60.0, max(f.view_zenith_deg for f in scene.frames) + 5, scene.sun_zenith_deg + 5)
+    ax.set_rlim(0, rmax)
+    ax.set_title(f"{scene.name}: view directions\n(zenith deg radial, azimuth clockwise from north)", fontsize=10)
+    ax.legend(loc="upper left", bbox_to_anchor=(0.82, 1.12), fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+

@@ -1,0 +1,138 @@
+"""Checks on a scene's ``transforms.json`` and cubes.
+
+Every check raises :class:`brfgs.errors.UserError` naming the file and the field
+(``frames[3].transform_matrix``), what was found and what was expected. The reader
+(:mod:`brfgs.data.scene`) calls these; nothing here writes anything.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from brfgs.errors import UserError
+
+ORTHONORMAL_TOL = 1e-3
+WAVELENGTH_TOL_NM = 0.5
+MIN_FRAMES = 3
+
+
+def number(value, file: Path, field: str, *, lo: float | None = None, hi: float | None = None,
+           integer: bool = False) -> float:
+    """``value`` as a finite float (or int) inside [lo, hi]; UserError otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UserError(f"expected a number, found {value!r}", file=file, field=field)
+    if not math.isfinite(value):
+        raise UserError(f"expected a finite number, found {value!r}", file=file, field=field)
+    if integer and int(value) != value:
+        raise UserError(f"expected an integer, found {value!r}", file=file, field=field)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise UserError(f"value {value} out of range, expected {lo} to {hi}", file=file, field=field)
+    return int(value) if integer else float(value)
+
+
+def number_list(value, file: Path, field: str, *, length: int | None = None) -> np.ndarray:
+    """A list of finite numbers as float64 [n]; optional exact length."""
+    if not isinstance(value, (list, tuple)) or len(value) == 0:
+        raise UserError(f"expected a non-empty list of numbers, found {type(value).__name__}", file=file, field=field)
+    out = np.empty(len(value))
+    for i, v in enumerate(value):
+        out[i] = number(v, file, f"{field}[{i}]")
+    if length is not None and len(out) != length:
+        raise UserError(f"expected {length} values (one per band), found {len(out)}", file=file, field=field)
+    return out
+
+
+def wavelengths(values, file: Path, field: str) -> np.ndarray:
+    """Band centre wavelengths (nm), positive and strictly increasing."""
+    wl = number_list(values, file, field)
+    if np.any(wl <= 0):
+        raise UserError("wavelengths must be positive (nanometres)", file=file, field=field)
+    bad = np.nonzero(np.diff(wl) <= 0)[0]
+    if bad.size:
+        i = int(bad[0])
+        raise UserError(f"wavelengths must be strictly increasing: {wl[i]:g} nm at index {i} is followed by "
+                        f"{wl[i + 1]:g} nm", file=file, field=field)
+    return wl
+
+
+def transform_matrix(value, file: Path, field: str) -> np.ndarray:
+    """A 4×4 camera-to-world with an orthonormal, right-handed rotation and last row (0, 0, 0, 1)."""
+    try:
+        m = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise UserError("expected a 4x4 matrix of numbers", file=file, field=field) from None
+    if m.shape != (4, 4):
+        raise UserError(f"expected a 4x4 matrix, found shape {m.shape}", file=file, field=field)
+    if not np.all(np.isfinite(m)):
+        raise UserError("matrix contains NaN or Inf", file=file, field=field)
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise UserError(f"last row must be [0, 0, 0, 1], found {m[3].tolist()}", file=file, field=field)
+    R = m[:3, :3]
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    if err > ORTHONORMAL_TOL:
+        raise UserError(f"rotation part is not orthonormal (max |R^T R - I| = {err:.3g}, tolerance "
+                        f"{ORTHONORMAL_TOL}); scale or shear in a camera-to-world matrix is not supported",
+                        file=file, field=field)
+    if np.linalg.det(R) < 0:
+        raise UserError("rotation part has determinant -1 (a reflection), expected a proper rotation",
+                        file=file, field=field)
+    return m
+
+
+def path_inside(root: Path, rel: object, file: Path, field: str) -> Path:
+    """Resolve ``rel`` against ``root``; refuse absolute paths and paths that lead outside ``root``."""
+    if not isinstance(rel, str) or not rel:
+        raise UserError(f"expected a relative path string, found {rel!r}", file=file, field=field)
+    if Path(rel).is_absolute():
+        raise UserError(f"absolute path {rel!r} not allowed: paths are relative to the scene folder",
+                        file=file, field=field)
+    full = (root / rel).resolve()
+    try:
+        full.relative_to(root.resolve())
+    except ValueError:
+        raise UserError(f"path {rel!r} leads outside the scene folder {root}", file=file, field=field) from None
+    return full
+
+
+def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transforms_file: Path,
+                   n_bands: int) -> None:
+    """A cube's ENVI header agrees with ``transforms.json`` (band count, wavelengths)."""
+    if hdr.get("bands") is not None and int(hdr["bands"]) != n_bands:
+        raise UserError(f"header has {int(hdr['bands'])} bands but {transforms_file.name} lists "
+                        f"{n_bands} wavelengths", file=cube_file, field="bands")
+    if "wavelength" in hdr:
+        try:
+            wl = np.asarray([float(v) for v in hdr["wavelength"]])
+        except (TypeError, ValueError):
+            raise UserError("wavelength values are not numbers", file=cube_file, field="wavelength") from None
+        if len(wl) != n_bands:
+            raise UserError(f"header lists {len(wl)} wavelengths, expected {n_bands}", file=cube_file,
+                            field="wavelength")
+        units = str(hdr.get("wavelength units", "nanometers")).lower()
+        if units.startswith("micro") or units in ("um", "µm"):
+            wl = wl * 1000.0
+        if np.any(np.diff(wl) <= 0):
+            raise UserError("header wavelengths are not strictly increasing", file=cube_file, field="wavelength")
+        diff = np.abs(wl - expected_wl)
+        if diff.max() > WAVELENGTH_TOL_NM:
+            i = int(diff.argmax())
+            raise UserError(f"band {i} is {wl[i]:g} nm in the header but {expected_wl[i]:g} nm in "
+                            f"{transforms_file.name} (tolerance {WAVELENGTH_TOL_NM} nm)", file=cube_file,
+                            field="wavelength")
+
+
+def pixel_range(block: np.ndarray, value_range: tuple[float, float], cube_file: Path, frame: str) -> None:
+    """Finite reflectances in ``block`` lie inside ``value_range``; NaN/Inf are allowed (masked later)."""
+    lo, hi = value_range
+    finite = np.isfinite(block)
+    bad = finite & ((block < lo) | (block > hi))
+    n_bad = int(bad.sum())
+    if n_bad:
+        vals = block[bad]
+        raise UserError(f"frame '{frame}': {n_bad} pixel values outside the plausible reflectance range "
+                        f"[{lo:g}, {hi:g}] (found min {vals.min():.4g}, max {vals.max():.4g}); is the cube in "
+                        f"reflectance units? Widen the range with --value-range if these values are real",
+                        file=cube_file, field="reflectance")
