@@ -14,7 +14,12 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 import sys
+
+# Idle OpenMP threads of numba/torch spin by default; on a 2-core machine shared with other
+# work that made rasterizer frames 1.2-3.4x slower (BENCHMARKS.md). Must be set before torch loads.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import typer
 

@@ -1,0 +1,495 @@
+"""numba kernels of the ``cpu`` rasterizer: projection, binning, tile raster, and their backward.
+
+Everything is compiled with ``cache=True`` (the first import compiles for ~15–30 s and writes
+``__pycache__``; later processes load the cache). Kernels work for float32 and float64
+arrays; scalar arithmetic inside is float64. Semantics: see ``brfgs.render._common``.
+
+Parallel structure (``prange``):
+* projection forward/backward: one iteration per Gaussian;
+* raster forward/backward: one iteration per 16×16 tile. A Gaussian is iterated only over
+  the pixels of its α ≥ 1/255 ellipse inside the tile (row spans from the conic), not over
+  every pixel of the tile;
+* the backward writes one gradient row per tile–Gaussian entry (race free) and a second
+  pass, one iteration per Gaussian, reduces the entries of each Gaussian.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from brfgs.render._common import (
+    ALPHA_MAX, ALPHA_MIN, EPS2D, EXTENT_ABS, EXTENT_REL, T_MIN, TILE,
+)
+
+_FM = {"nsz", "arcp", "contract", "reassoc"}  # fast-math without nnan/ninf/afn
+
+
+@njit(cache=True, inline="always")
+def _rotmat(qw, qx, qy, qz):
+    """Rotation matrix of a unit quaternion (wxyz), as 9 scalars row-major."""
+    return (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy),
+            2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx),
+            2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
+
+
+@njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def project_fwd(means, quats, scales, opac, view, cam, width, height, near, far,
+                means2d, conics, depths, radii, rect, visible):
+    """EWA projection of every Gaussian.
+
+    means [N,3], quats [N,4], scales [N,3], opac [N]; view [4,4] float64 world-to-camera;
+    cam = (fx, fy, cx, cy, lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos) float64 [8].
+    Outputs: means2d [N,2], conics [N,3], depths [N], radii [N,2] (half extents, px),
+    rect [N,4] int32 tile rectangle (inclusive), visible [N] bool.
+    """
+    N = means.shape[0]
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    lxn, lxp, lyn, lyp = cam[4], cam[5], cam[6], cam[7]
+    for i in prange(N):
+        mx_ = float(means[i, 0]); my_ = float(means[i, 1]); mz_ = float(means[i, 2])
+        x = view[0, 0] * mx_ + view[0, 1] * my_ + view[0, 2] * mz_ + view[0, 3]
+        y = view[1, 0] * mx_ + view[1, 1] * my_ + view[1, 2] * mz_ + view[1, 3]
+        z = view[2, 0] * mx_ + view[2, 1] * my_ + view[2, 2] * mz_ + view[2, 3]
+        depths[i] = z
+        visible[i] = False
+        radii[i, 0] = 0.0
+        radii[i, 1] = 0.0
+        rect[i, 0] = 0; rect[i, 1] = 0; rect[i, 2] = -1; rect[i, 3] = -1
+        means2d[i, 0] = 0.0; means2d[i, 1] = 0.0
+        conics[i, 0] = 0.0; conics[i, 1] = 0.0; conics[i, 2] = 0.0
+        o = float(opac[i])
+        if not (z > near and z < far) or not (o > ALPHA_MIN):
+            continue
+        qw = float(quats[i, 0]); qx = float(quats[i, 1]); qy = float(quats[i, 2]); qz = float(quats[i, 3])
+        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw /= qn; qx /= qn; qy /= qn; qz /= qn
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw, qx, qy, qz)
+        s0 = float(scales[i, 0]); s1 = float(scales[i, 1]); s2 = float(scales[i, 2])
+        # A = Rw · R · S (camera-space square root of the covariance)
+        m00 = r00 * s0; m01 = r01 * s1; m02 = r02 * s2
+        m10 = r10 * s0; m11 = r11 * s1; m12 = r12 * s2
+        m20 = r20 * s0; m21 = r21 * s1; m22 = r22 * s2
+        a00 = view[0, 0] * m00 + view[0, 1] * m10 + view[0, 2] * m20
+        a01 = view[0, 0] * m01 + view[0, 1] * m11 + view[0, 2] * m21
+        a02 = view[0, 0] * m02 + view[0, 1] * m12 + view[0, 2] * m22
+        a10 = view[1, 0] * m00 + view[1, 1] * m10 + view[1, 2] * m20
+        a11 = view[1, 0] * m01 + view[1, 1] * m11 + view[1, 2] * m21
+        a12 = view[1, 0] * m02 + view[1, 1] * m12 + view[1, 2] * m22
+        a20 = view[2, 0] * m00 + view[2, 1] * m10 + view[2, 2] * m20
+        a21 = view[2, 0] * m01 + view[2, 1] * m11 + view[2, 2] * m21
+        a22 = view[2, 0] * m02 + view[2, 1] * m12 + view[2, 2] * m22
+        rz = 1.0 / z
+        txz = min(lxp, max(-lxn, x * rz))
+        tyz = min(lyp, max(-lyn, y * rz))
+        j00 = fx * rz; j02 = -fx * txz * rz
+        j11 = fy * rz; j12 = -fy * tyz * rz
+        # B = J · A  (2×3); cov2 = B Bᵀ
+        b00 = j00 * a00 + j02 * a20; b01 = j00 * a01 + j02 * a21; b02 = j00 * a02 + j02 * a22
+        b10 = j11 * a10 + j12 * a20; b11 = j11 * a11 + j12 * a21; b12 = j11 * a12 + j12 * a22
+        ca = b00 * b00 + b01 * b01 + b02 * b02 + EPS2D
+        cb = b00 * b10 + b01 * b11 + b02 * b12
+        cc = b10 * b10 + b11 * b11 + b12 * b12 + EPS2D
+        det = ca * cc - cb * cb
+        if not (det > 0.0):
+            continue
+        u = fx * x * rz + cx
+        v = fy * y * rz + cy
+        smax = math.log(255.0 * o) * (1.0 + EXTENT_REL) + EXTENT_ABS
+        rx = math.sqrt(2.0 * smax * ca)
+        ry = math.sqrt(2.0 * smax * cc)
+        px0 = math.floor(u - rx) - 1.0
+        px1 = math.ceil(u + rx)
+        py0 = math.floor(v - ry) - 1.0
+        py1 = math.ceil(v + ry)
+        if px1 < 0.0 or px0 > width - 1 or py1 < 0.0 or py0 > height - 1:
+            continue
+        if not (math.isfinite(u) and math.isfinite(v)):
+            continue
+        visible[i] = True
+        means2d[i, 0] = u
+        means2d[i, 1] = v
+        conics[i, 0] = cc / det
+        conics[i, 1] = -cb / det
+        conics[i, 2] = ca / det
+        radii[i, 0] = rx
+        radii[i, 1] = ry
+        rect[i, 0] = int(max(px0, 0.0)) // TILE
+        rect[i, 1] = int(max(py0, 0.0)) // TILE
+        rect[i, 2] = int(min(px1, width - 1.0)) // TILE
+        rect[i, 3] = int(min(py1, height - 1.0)) // TILE
+
+
+@njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def project_bwd(means, quats, scales, view, cam, visible, v_means2d, v_conics, v_depths,
+                v_means, v_quats, v_scales):
+    """Backward of :func:`project_fwd` for means, quats and scales (zero for invisible Gaussians).
+
+    v_means2d [N,2], v_conics [N,3], v_depths [N] → v_means [N,3], v_quats [N,4], v_scales [N,3].
+    The depth gradient flows for every Gaussian in front of the near plane that is visible.
+    """
+    N = means.shape[0]
+    fx, fy = cam[0], cam[1]
+    lxn, lxp, lyn, lyp = cam[4], cam[5], cam[6], cam[7]
+    for i in prange(N):
+        for k in range(3):
+            v_means[i, k] = 0.0
+            v_scales[i, k] = 0.0
+        for k in range(4):
+            v_quats[i, k] = 0.0
+        if not visible[i]:
+            continue
+        mx_ = float(means[i, 0]); my_ = float(means[i, 1]); mz_ = float(means[i, 2])
+        x = view[0, 0] * mx_ + view[0, 1] * my_ + view[0, 2] * mz_ + view[0, 3]
+        y = view[1, 0] * mx_ + view[1, 1] * my_ + view[1, 2] * mz_ + view[1, 3]
+        z = view[2, 0] * mx_ + view[2, 1] * my_ + view[2, 2] * mz_ + view[2, 3]
+        qw0 = float(quats[i, 0]); qx0 = float(quats[i, 1]); qy0 = float(quats[i, 2]); qz0 = float(quats[i, 3])
+        qn = math.sqrt(qw0 * qw0 + qx0 * qx0 + qy0 * qy0 + qz0 * qz0)
+        qw = qw0 / qn; qx = qx0 / qn; qy = qy0 / qn; qz = qz0 / qn
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw, qx, qy, qz)
+        s0 = float(scales[i, 0]); s1 = float(scales[i, 1]); s2 = float(scales[i, 2])
+        m00 = r00 * s0; m01 = r01 * s1; m02 = r02 * s2
+        m10 = r10 * s0; m11 = r11 * s1; m12 = r12 * s2
+        m20 = r20 * s0; m21 = r21 * s1; m22 = r22 * s2
+        a00 = view[0, 0] * m00 + view[0, 1] * m10 + view[0, 2] * m20
+        a01 = view[0, 0] * m01 + view[0, 1] * m11 + view[0, 2] * m21
+        a02 = view[0, 0] * m02 + view[0, 1] * m12 + view[0, 2] * m22
+        a10 = view[1, 0] * m00 + view[1, 1] * m10 + view[1, 2] * m20
+        a11 = view[1, 0] * m01 + view[1, 1] * m11 + view[1, 2] * m21
+        a12 = view[1, 0] * m02 + view[1, 1] * m12 + view[1, 2] * m22
+        a20 = view[2, 0] * m00 + view[2, 1] * m10 + view[2, 2] * m20
+        a21 = view[2, 0] * m01 + view[2, 1] * m11 + view[2, 2] * m21
+        a22 = view[2, 0] * m02 + view[2, 1] * m12 + view[2, 2] * m22
+        rz = 1.0 / z
+        xz = x * rz
+        yz = y * rz
+        x_free = (xz >= -lxn) and (xz <= lxp)
+        y_free = (yz >= -lyn) and (yz <= lyp)
+        txz = min(lxp, max(-lxn, xz))
+        tyz = min(lyp, max(-lyn, yz))
+        j00 = fx * rz; j02 = -fx * txz * rz
+        j11 = fy * rz; j12 = -fy * tyz * rz
+        b00 = j00 * a00 + j02 * a20; b01 = j00 * a01 + j02 * a21; b02 = j00 * a02 + j02 * a22
+        b10 = j11 * a10 + j12 * a20; b11 = j11 * a11 + j12 * a21; b12 = j11 * a12 + j12 * a22
+        ca = b00 * b00 + b01 * b01 + b02 * b02 + EPS2D
+        cb = b00 * b10 + b01 * b11 + b02 * b12
+        cc = b10 * b10 + b11 * b11 + b12 * b12 + EPS2D
+        det = ca * cc - cb * cb
+        X00 = cc / det; X01 = -cb / det; X11 = ca / det
+        # Symmetric gradient of the conic matrix X: off-diagonal entries get half of dL/db.
+        G00 = float(v_conics[i, 0]); G01 = 0.5 * float(v_conics[i, 1]); G11 = float(v_conics[i, 2])
+        # dL/dcov2 = -X G X
+        t00 = G00 * X00 + G01 * X01; t01 = G00 * X01 + G01 * X11
+        t10 = G01 * X00 + G11 * X01; t11 = G01 * X01 + G11 * X11
+        H00 = -(X00 * t00 + X01 * t10)
+        H01 = -(X00 * t01 + X01 * t11)
+        H11 = -(X01 * t01 + X11 * t11)
+        # cov2 = B Bᵀ → dL/dB = 2 H B
+        gb00 = 2.0 * (H00 * b00 + H01 * b10); gb01 = 2.0 * (H00 * b01 + H01 * b11); gb02 = 2.0 * (H00 * b02 + H01 * b12)
+        gb10 = 2.0 * (H01 * b00 + H11 * b10); gb11 = 2.0 * (H01 * b01 + H11 * b11); gb12 = 2.0 * (H01 * b02 + H11 * b12)
+        # B = J A → dL/dJ = gB Aᵀ (only the 4 non-zero entries), dL/dA = Jᵀ gB
+        gj00 = gb00 * a00 + gb01 * a01 + gb02 * a02
+        gj02 = gb00 * a20 + gb01 * a21 + gb02 * a22
+        gj11 = gb10 * a10 + gb11 * a11 + gb12 * a12
+        gj12 = gb10 * a20 + gb11 * a21 + gb12 * a22
+        ga00 = j00 * gb00; ga01 = j00 * gb01; ga02 = j00 * gb02
+        ga10 = j11 * gb10; ga11 = j11 * gb11; ga12 = j11 * gb12
+        ga20 = j02 * gb00 + j12 * gb10; ga21 = j02 * gb01 + j12 * gb11; ga22 = j02 * gb02 + j12 * gb12
+        # A = Rw M → dL/dM = Rwᵀ gA
+        gm00 = view[0, 0] * ga00 + view[1, 0] * ga10 + view[2, 0] * ga20
+        gm01 = view[0, 0] * ga01 + view[1, 0] * ga11 + view[2, 0] * ga21
+        gm02 = view[0, 0] * ga02 + view[1, 0] * ga12 + view[2, 0] * ga22
+        gm10 = view[0, 1] * ga00 + view[1, 1] * ga10 + view[2, 1] * ga20
+        gm11 = view[0, 1] * ga01 + view[1, 1] * ga11 + view[2, 1] * ga21
+        gm12 = view[0, 1] * ga02 + view[1, 1] * ga12 + view[2, 1] * ga22
+        gm20 = view[0, 2] * ga00 + view[1, 2] * ga10 + view[2, 2] * ga20
+        gm21 = view[0, 2] * ga01 + view[1, 2] * ga11 + view[2, 2] * ga21
+        gm22 = view[0, 2] * ga02 + view[1, 2] * ga12 + view[2, 2] * ga22
+        # M = R S
+        v_scales[i, 0] = gm00 * r00 + gm10 * r10 + gm20 * r20
+        v_scales[i, 1] = gm01 * r01 + gm11 * r11 + gm21 * r21
+        v_scales[i, 2] = gm02 * r02 + gm12 * r12 + gm22 * r22
+        g00 = gm00 * s0; g01 = gm01 * s1; g02 = gm02 * s2
+        g10 = gm10 * s0; g11 = gm11 * s1; g12 = gm12 * s2
+        g20 = gm20 * s0; g21 = gm21 * s1; g22 = gm22 * s2
+        # R(q) → dL/dq (unit q), then through q = q0/|q0|
+        gw = 2.0 * (-qz * g01 + qy * g02 + qz * g10 - qx * g12 - qy * g20 + qx * g21)
+        gx = 2.0 * (qy * g01 + qz * g02 + qy * g10 - 2.0 * qx * g11 - qw * g12 + qz * g20 + qw * g21 - 2.0 * qx * g22)
+        gy = 2.0 * (-2.0 * qy * g00 + qx * g01 + qw * g02 + qx * g10 + qz * g12 - qw * g20 + qz * g21 - 2.0 * qy * g22)
+        gz = 2.0 * (-2.0 * qz * g00 - qw * g01 + qx * g02 + qw * g10 - 2.0 * qz * g11 + qy * g12 + qx * g20 + qy * g21)
+        dot = qw * gw + qx * gx + qy * gy + qz * gz
+        v_quats[i, 0] = (gw - qw * dot) / qn
+        v_quats[i, 1] = (gx - qx * dot) / qn
+        v_quats[i, 2] = (gy - qy * dot) / qn
+        v_quats[i, 3] = (gz - qz * dot) / qn
+        # camera-space position gradient: from means2d, depth and the Jacobian
+        vu = float(v_means2d[i, 0]); vv = float(v_means2d[i, 1])
+        gxc = vu * fx * rz
+        gyc = vv * fy * rz
+        gzc = -(vu * fx * x + vv * fy * y) * rz * rz + float(v_depths[i])
+        # J00 = fx/z, J11 = fy/z, J02 = -fx·tx/z², J12 = -fy·ty/z² with tx = z·clamp(x/z)
+        gzc += -(gj00 * fx + gj11 * fy) * rz * rz
+        if x_free:   # tx = x: J02 = -fx x / z²
+            gxc += gj02 * (-fx * rz * rz)
+            gzc += gj02 * (2.0 * fx * x * rz * rz * rz)
+        else:        # tx = z·lim: J02 = -fx lim / z
+            gzc += gj02 * (fx * txz * rz * rz)
+        if y_free:
+            gyc += gj12 * (-fy * rz * rz)
+            gzc += gj12 * (2.0 * fy * y * rz * rz * rz)
+        else:
+            gzc += gj12 * (fy * tyz * rz * rz)
+        for k in range(3):
+            v_means[i, k] = view[0, k] * gxc + view[1, k] * gyc + view[2, k] * gzc
+
+
+@njit(cache=True, nogil=True)
+def bin_tiles(order, rect, n_tiles_x, n_tiles_total, n_gauss):
+    """Tile lists from Gaussians ``order`` [V] (visible, front to back) and tile rectangles.
+
+    Returns tile_start [T+1], tile_gid [E] (per tile in depth order), and the per-Gaussian
+    index of its entries: gauss_start [N+1], gauss_entry [E].
+    """
+    counts = np.zeros(n_tiles_total, np.int64)
+    gcount = np.zeros(n_gauss, np.int64)
+    for j in range(order.shape[0]):
+        g = order[j]
+        c = 0
+        for ty in range(rect[g, 1], rect[g, 3] + 1):
+            for tx in range(rect[g, 0], rect[g, 2] + 1):
+                counts[ty * n_tiles_x + tx] += 1
+                c += 1
+        gcount[g] = c
+    tile_start = np.zeros(n_tiles_total + 1, np.int64)
+    for t in range(n_tiles_total):
+        tile_start[t + 1] = tile_start[t] + counts[t]
+    gauss_start = np.zeros(n_gauss + 1, np.int64)
+    for g in range(n_gauss):
+        gauss_start[g + 1] = gauss_start[g] + gcount[g]
+    E = tile_start[n_tiles_total]
+    tile_gid = np.empty(E, np.int32)
+    gauss_entry = np.empty(E, np.int64)
+    cursor = tile_start[:-1].copy()
+    for j in range(order.shape[0]):
+        g = order[j]
+        c = gauss_start[g]
+        for ty in range(rect[g, 1], rect[g, 3] + 1):
+            for tx in range(rect[g, 0], rect[g, 2] + 1):
+                t = ty * n_tiles_x + tx
+                pos = cursor[t]
+                cursor[t] = pos + 1
+                tile_gid[pos] = g
+                gauss_entry[c] = pos
+                c += 1
+    return tile_start, tile_gid, gauss_start, gauss_entry
+
+
+@njit(cache=True, inline="always")
+def _span(a, inv_a, b, c, smax, dy, mx, x0, x1):
+    """Pixel columns [lo, hi] of a tile row (x0 ≤ px < x1) that can lie inside σ ≤ smax."""
+    bdy = b * dy
+    disc = bdy * bdy - a * (c * dy * dy - 2.0 * smax)
+    if disc < 0.0:
+        return 0, -1
+    sq = math.sqrt(disc)
+    lo = max(x0, int(math.floor(mx + (-bdy - sq) * inv_a - 0.5)))
+    hi = min(x1 - 1, int(math.ceil(mx + (-bdy + sq) * inv_a - 0.5)))
+    return lo, hi
+
+
+@njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def raster_fwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_gid, width, height, n_tiles_x,
+               image, t_final, n_used):
+    """Front-to-back compositing per tile.
+
+    colors [N,D] → image [H,W,D] (every pixel written), t_final [H,W] final transmittance,
+    n_used [H,W] int32: 1 + local index (in its tile list) of the last composited entry, 0 if none.
+    """
+    D = colors.shape[1]
+    n_tiles_total = tile_start.shape[0] - 1
+    for t in prange(n_tiles_total):
+        tx = t % n_tiles_x
+        ty = t // n_tiles_x
+        x0 = tx * TILE
+        y0 = ty * TILE
+        x1 = min(x0 + TILE, width)
+        y1 = min(y0 + TILE, height)
+        s = tile_start[t]
+        e = tile_start[t + 1]
+        T = np.ones(TILE * TILE, np.float64)
+        last = np.zeros(TILE * TILE, np.int32)
+        done = np.zeros(TILE * TILE, np.bool_)
+        acc = np.zeros((TILE * TILE, D), image.dtype)
+        wbuf = np.zeros(1, image.dtype)  # casts the weight to the image dtype for the channel loop
+        n_done = 0
+        n_pix = (x1 - x0) * (y1 - y0)
+        for k in range(s, e):
+            g = tile_gid[k]
+            mx = float(means2d[g, 0]); my = float(means2d[g, 1])
+            a = float(conics[g, 0]); b = float(conics[g, 1]); c = float(conics[g, 2])
+            o = float(opac[g])
+            smax = smax_all[g]
+            inv_a = 1.0 / a
+            ry = float(radii[g, 1])
+            ya = max(y0, int(math.floor(my - ry - 0.5)))
+            yb = min(y1 - 1, int(math.ceil(my + ry - 0.5)))
+            for py in range(ya, yb + 1):
+                dy = py + 0.5 - my
+                lo, hi = _span(a, inv_a, b, c, smax, dy, mx, x0, x1)
+                row = (py - y0) * TILE - x0
+                for px in range(lo, hi + 1):
+                    li = row + px
+                    if done[li]:
+                        continue
+                    dx = px + 0.5 - mx
+                    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+                    if sigma < 0.0:
+                        continue
+                    wbuf[0] = -sigma  # exp in the image's precision (expf for float32)
+                    al = min(ALPHA_MAX, o * math.exp(wbuf[0]))
+                    if al < ALPHA_MIN:
+                        continue
+                    Tp = T[li]
+                    Tn = Tp * (1.0 - al)
+                    if Tn < T_MIN:
+                        done[li] = True
+                        n_done += 1
+                        continue
+                    wbuf[0] = al * Tp
+                    w = wbuf[0]
+                    for ch in range(D):
+                        acc[li, ch] += w * colors[g, ch]
+                    T[li] = Tn
+                    last[li] = k - s + 1
+            if n_done == n_pix:
+                break
+        for py in range(y0, y1):
+            for px in range(x0, x1):
+                li = (py - y0) * TILE + (px - x0)
+                t_final[py, px] = T[li]
+                n_used[py, px] = last[li]
+                for ch in range(D):
+                    image[py, px, ch] = acc[li, ch]
+
+
+@njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def raster_bwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_gid, width, height, n_tiles_x,
+               t_final, n_used, v_image, v_alpha,
+               e_means2d, e_conics, e_opac, e_colors):
+    """Back-to-front gradient pass per tile, one gradient row per tile–Gaussian entry.
+
+    v_image [H,W,D], v_alpha [H,W] → e_means2d [E,2], e_conics [E,3], e_opac [E], e_colors [E,D]
+    (every row written). With s_j = f_j·∂L/∂C and R_i = Σ_{j>i} w_j s_j − ∂L/∂A·T_final:
+    ∂L/∂α_i = T_i s_i − R_i/(1−α_i).
+    """
+    D = colors.shape[1]
+    n_tiles_total = tile_start.shape[0] - 1
+    for t in prange(n_tiles_total):
+        tx = t % n_tiles_x
+        ty = t // n_tiles_x
+        x0 = tx * TILE
+        y0 = ty * TILE
+        x1 = min(x0 + TILE, width)
+        y1 = min(y0 + TILE, height)
+        s = tile_start[t]
+        e = tile_start[t + 1]
+        T = np.ones(TILE * TILE, np.float64)
+        R = np.zeros(TILE * TILE, np.float64)
+        last = np.zeros(TILE * TILE, np.int32)
+        wbuf = np.zeros(1, e_colors.dtype)
+        sbuf = np.zeros(1, e_colors.dtype)
+        max_last = 0
+        for py in range(y0, y1):
+            for px in range(x0, x1):
+                li = (py - y0) * TILE + (px - x0)
+                tf = float(t_final[py, px])
+                T[li] = tf
+                R[li] = -float(v_alpha[py, px]) * tf
+                last[li] = n_used[py, px]
+                max_last = max(max_last, n_used[py, px])
+        for k in range(s + max_last, e):  # entries nobody used
+            e_means2d[k, 0] = 0.0; e_means2d[k, 1] = 0.0
+            e_conics[k, 0] = 0.0; e_conics[k, 1] = 0.0; e_conics[k, 2] = 0.0
+            e_opac[k] = 0.0
+            for ch in range(D):
+                e_colors[k, ch] = 0.0
+        for k in range(s + max_last - 1, s - 1, -1):
+            kl = k - s
+            g = tile_gid[k]
+            mx = float(means2d[g, 0]); my = float(means2d[g, 1])
+            a = float(conics[g, 0]); b = float(conics[g, 1]); c = float(conics[g, 2])
+            o = float(opac[g])
+            smax = smax_all[g]
+            inv_a = 1.0 / a
+            ry = float(radii[g, 1])
+            ya = max(y0, int(math.floor(my - ry - 0.5)))
+            yb = min(y1 - 1, int(math.ceil(my + ry - 0.5)))
+            for ch in range(D):
+                e_colors[k, ch] = 0.0
+            g_mx = 0.0; g_my = 0.0; g_a = 0.0; g_b = 0.0; g_c = 0.0; g_o = 0.0
+            for py in range(ya, yb + 1):
+                dy = py + 0.5 - my
+                lo, hi = _span(a, inv_a, b, c, smax, dy, mx, x0, x1)
+                for px in range(lo, hi + 1):
+                    li = (py - y0) * TILE + (px - x0)
+                    if kl >= last[li]:
+                        continue
+                    dx = px + 0.5 - mx
+                    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+                    if sigma < 0.0:
+                        continue
+                    wbuf[0] = -sigma  # exp in the image's precision (expf for float32)
+                    G = float(math.exp(wbuf[0]))
+                    ar = o * G
+                    al = min(ALPHA_MAX, ar)
+                    if al < ALPHA_MIN:
+                        continue
+                    rom = 1.0 / (1.0 - al)
+                    Ti = T[li] * rom
+                    T[li] = Ti
+                    w = al * Ti
+                    wbuf[0] = w
+                    wf = wbuf[0]
+                    sbuf[0] = 0.0
+                    sd = sbuf[0]
+                    for ch in range(D):
+                        vc = v_image[py, px, ch]
+                        sd += colors[g, ch] * vc
+                        e_colors[k, ch] += wf * vc
+                    v_al = Ti * sd - R[li] * rom
+                    R[li] += w * sd
+                    if ar <= ALPHA_MAX:
+                        v_sig = -v_al * ar
+                        g_o += v_al * G
+                        g_a += v_sig * 0.5 * dx * dx
+                        g_b += v_sig * dx * dy
+                        g_c += v_sig * 0.5 * dy * dy
+                        g_mx -= v_sig * (a * dx + b * dy)
+                        g_my -= v_sig * (b * dx + c * dy)
+            e_means2d[k, 0] = g_mx; e_means2d[k, 1] = g_my
+            e_conics[k, 0] = g_a; e_conics[k, 1] = g_b; e_conics[k, 2] = g_c
+            e_opac[k] = g_o
+
+
+@njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
+def reduce_entries(gauss_start, gauss_entry, e_means2d, e_conics, e_opac, e_colors,
+                   v_means2d, v_conics, v_opac, v_colors):
+    """Sum the per-entry gradients of each Gaussian (outputs fully written)."""
+    N = gauss_start.shape[0] - 1
+    D = e_colors.shape[1]
+    for g in prange(N):
+        m0 = 0.0; m1 = 0.0; c0 = 0.0; c1 = 0.0; c2 = 0.0; op = 0.0
+        for ch in range(D):
+            v_colors[g, ch] = 0.0
+        for j in range(gauss_start[g], gauss_start[g + 1]):
+            k = gauss_entry[j]
+            m0 += e_means2d[k, 0]; m1 += e_means2d[k, 1]
+            c0 += e_conics[k, 0]; c1 += e_conics[k, 1]; c2 += e_conics[k, 2]
+            op += e_opac[k]
+            for ch in range(D):
+                v_colors[g, ch] += e_colors[k, ch]
+        v_means2d[g, 0] = m0; v_means2d[g, 1] = m1
+        v_conics[g, 0] = c0; v_conics[g, 1] = c1; v_conics[g, 2] = c2
+        v_opac[g] = op
