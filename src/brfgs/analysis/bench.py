@@ -1,0 +1,133 @@
+"""Speed of the analysis: one arbitrary 164-band view, and a polar BRF map of one ROI.
+
+Measured on a trained model (``model``: run folder or model file) or, without one, on a
+synthetic model of the same shape as a 128-px testsite run: ``n_gaussians`` Gaussians
+over a 120 m × 120 m undulating surface with tree-like clusters, latent d = 16, a
+164-band spectral autoencoder (untrained weights: the cost does not depend on them).
+Reported: the median of ``repeats`` runs after one warm-up (numba loads its compiled
+kernels on first use).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from brfgs.analysis.renderer import BRFModel, load_model, render_view, torch_threads
+
+__all__ = ["synthetic_model", "bench_analysis"]
+
+
+def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: int = 16, seed: int = 0) -> BRFModel:
+    """A deterministic synthetic BRF-GS model (hybrid head with all four terms) for timing."""
+    from brfgs.brdf.head import HeadConfig, init_head_params
+    from brfgs.data.cameras import Intrinsics, pose_from_view_angles
+    from brfgs.model.gaussians import GaussianModel
+    from brfgs.spectral.autoencoder import SpectralAutoencoder
+
+    rng = np.random.default_rng(seed)
+    n_ground = int(0.8 * n_gaussians)
+    xy = rng.uniform(-60, 60, (n_ground, 2))
+    z = 0.3 * np.sin(xy[:, 0] / 9.0) * np.cos(xy[:, 1] / 7.0)
+    trees = rng.uniform(-50, 50, (40, 2))
+    k = n_gaussians - n_ground
+    c = trees[rng.integers(0, 40, k)]
+    crown = c + rng.normal(0, 2.0, (k, 2))
+    cz = 7.0 + rng.normal(0, 1.5, k)
+    means = np.concatenate([np.c_[xy, z], np.c_[crown, cz]]).astype(np.float32)
+    n = len(means)
+    scales = np.concatenate([np.tile([0.45, 0.45, 0.05], (n_ground, 1)), np.full((k, 3), 0.3)]).astype(np.float32)
+    q = rng.normal(size=(n, 4)).astype(np.float32)
+    q[:n_ground] = [1, 0, 0, 0]
+    cfg = HeadConfig(kind="hybrid")
+    g = torch.Generator().manual_seed(seed)
+    head = init_head_params(cfg, n, latent_dim, z_init=torch.randn(n, latent_dim, generator=g))
+    for key in ("z_vol", "z_geo", "z_spec"):
+        head[key] = 0.1 * torch.randn(n, latent_dim, generator=g)
+    params = {"means": torch.from_numpy(means), "log_scales": torch.from_numpy(np.log(scales)),
+              "quats": torch.from_numpy(q), "opacity_logits": torch.full((n,), 3.0), "colors": torch.zeros(n, 3)}
+    params.update(head)
+    gm = GaussianModel(params, "brf", latent_dim, 3)
+    for v in gm.params.values():
+        v.requires_grad_(False)
+    torch.manual_seed(seed)
+    ae = SpectralAutoencoder(n_bands, latent_dim).eval()
+    intr = Intrinsics.from_fov(35.0, 128, 128)
+    frames = [{"name": f"v{i}", "split": "train", "c2w": pose_from_view_angles(z_, a_, 190.0).tolist(),
+               "view_zenith_deg": z_, "view_azimuth_deg": a_}
+              for i, (z_, a_) in enumerate([(0.0, 0.0), (38.0, 0.0), (38.0, 180.0)])]
+    return BRFModel(model=gm, head_cfg=cfg, decoder=ae, wavelengths_nm=np.linspace(350.0, 1000.0, n_bands),
+                    sun_zenith_deg=35.0, sun_azimuth_deg=150.0, intrinsics=intr, frames=frames,
+                    cir_indices=(123, 76, 50), cir_scale=np.ones(3), scene_name="synthetic")
+
+
+def _median_time(fn, repeats: int) -> tuple[float, list[float], list[float]]:
+    """(median wall seconds, wall seconds, CPU seconds of this process) after one warm-up."""
+    fn()  # warm-up
+    ts, cs = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        ts.append(time.perf_counter() - t0)
+        cs.append(time.process_time() - c0)
+    return statistics.median(ts), ts, cs
+
+
+def bench_analysis(model=None, *, n_gaussians: int = 50_000, size: int = 128, repeats: int = 5,
+                   polar_azimuths: int = 60, polar_zeniths: int = 24, polar_repeats: int = 1,
+                   roi_half_m: float = 5.0, roi_size_px: int | None = None, bands=(480.0, 680.0, 760.0, 860.0),
+                   backend: str = "cpu", loop_threads: int = 1) -> dict:
+    """Time one arbitrary view (decoded, all bands) and one polar map (4 bands); returns a dict."""
+    from brfgs.analysis.brf import auto_roi_size, polar_map
+    from brfgs.analysis.roi import PolygonROI
+    from brfgs.analysis.views import view_camera
+
+    bm = load_model(model) if model is not None else synthetic_model(n_gaussians)
+    c2w, intr = view_camera(37.0, 65.0, bm.typical_distance_m(), bm.scene_centre_m(), size=size,
+                            fov_deg=2 * math.degrees(math.atan(0.5 * bm.intrinsics.w / bm.intrinsics.fl_x)))
+    import numba
+
+    load_before = os.getloadavg()
+    med, all_, cpu = _median_time(lambda: render_view(bm, c2w, intr, backend=backend), repeats)
+    render_threads = {"numba": numba.get_num_threads(), "torch": torch.get_num_threads()}
+    rv = render_view(bm, c2w, intr, backend=backend)
+    c = bm.scene_centre_m()
+    h = roi_half_m
+    roi = PolygonROI(np.array([[c[0] - h, c[1] - h], [c[0] + h, c[1] - h], [c[0] + h, c[1] + h], [c[0] - h, c[1] + h]]))
+    bi = bm.band_indices(bands)
+
+    def pm():
+        with torch_threads(loop_threads or None):
+            polar_map(bm, roi, bi, n_azimuth=polar_azimuths, n_zenith=polar_zeniths, size=roi_size_px,
+                      backend=backend)
+
+    pts, pcs = [], []
+    for _ in range(polar_repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        pm()
+        pts.append(time.perf_counter() - t0)
+        pcs.append(time.process_time() - c0)
+
+    return {
+        "machine": {"platform": platform.platform(), "processor": platform.processor(),
+                    "cpu_count": os.cpu_count(), "torch_threads": render_threads["torch"],
+                    "numba_threads": render_threads["numba"], "backend": backend,
+                    "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())},
+        "model": "synthetic" if model is None else str(model), "n_gaussians": bm.n_gaussians,
+        "bands": len(bm.wavelengths_nm), "latent_dim": bm.model.latent_dim,
+        "render": {"size": [intr.w, intr.h], "median_s": med, "all_s": all_, "cpu_s": cpu,
+                   "median_cpu_s": statistics.median(cpu), "repeats": repeats,
+                   "split_s": rv.timings_s},
+        "polar_map": {"directions": polar_azimuths * polar_zeniths, "bands": len(bi),
+                      "roi_camera_px": roi_size_px or auto_roi_size(bm, 1.1 * roi.radius_m),
+                      "median_s": statistics.median(pts), "all_s": pts, "cpu_s": pcs,
+                      "median_cpu_s": statistics.median(pcs),
+                      "per_direction_ms": 1000 * statistics.median(pts) / (polar_azimuths * polar_zeniths),
+                      "torch_threads_in_loop": loop_threads},
+    }
