@@ -132,7 +132,7 @@ def test_products_and_export(run_dir, tmp_path):
 
 def test_bench_analysis_runs_on_a_small_synthetic_model(tmp_path):
     out = tmp_path / "bench.json"
-    assert main(["bench-analysis", "--gaussians", "2000", "--size", "16", "--repeats", "1", "--threads", "1",
+    assert main(["bench", "analysis", "--gaussians", "2000", "--size", "16", "--repeats", "1", "--threads", "1",
                  "--polar-azimuths", "4", "--polar-zeniths", "2", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert res["n_gaussians"] == 2000 and res["bands"] == 164

@@ -616,7 +616,6 @@ def bench_analysis_cmd(
 
 
 def register(app: typer.Typer) -> None:
-    app.command("bench-analysis")(bench_analysis_cmd)
     app.command("render")(render_cmd)
     app.command("brf")(brf_cmd)
     app.command("products")(products_cmd)

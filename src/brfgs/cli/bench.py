@@ -102,4 +102,7 @@ def kernels_cmd(
 
 
 def register(app: typer.Typer) -> None:
+    from brfgs.cli.analysis import bench_analysis_cmd
+
+    bench_app.command("analysis")(bench_analysis_cmd)
     app.add_typer(bench_app, name="bench")
