@@ -1,0 +1,541 @@
+"""Step 3 of the pipeline: cameras and a sparse point cloud from the selected bands.
+
+    res = initialize(scene, band_indices, poses="known"|"sfm"|"auto", out_dir=...)
+    res.points [P, 3] (m, ENU)   res.colors [P, k] (reflectance in the selected bands)
+    res.c2w [F, 4, 4] (OpenGL)   res.registered [F]   res.report (init_report.json)
+
+Features: SIFT on an 8-bit stretch of each selected band, pooled over bands with duplicates
+removed (:mod:`brfgs.init.features`); matching: COLMAP exhaustive matching with ratio test and
+cross check (putative matches), then two-view geometric verification by RANSAC (verified
+matches). ``sfm`` runs COLMAP incremental mapping with the known intrinsics and aligns the
+result to the scene's ENU frame by a similarity (Umeyama) fitted to the camera centres of
+transforms.json (measured or nominal), so angles keep their meaning. ``known`` triangulates
+the verified matches with the poses of transforms.json (COLMAP point triangulator).
+``auto`` uses ``known`` when every frame of transforms.json has a ``transform_matrix``
+(e.g. RTK/gimbal poses) and ``sfm`` when some frames only give nominal view angles; if SfM
+then fails it falls back to the nominal poses (recorded in the report).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from brfgs.bands.select import detect_downscale_factor
+from brfgs.data.cameras import project_points
+from brfgs.errors import UserError
+from brfgs.init.features import (DEFAULT_MAX_FEATURES, SFM_CONTRAST_THRESHOLD, ViewFeatures,
+                                 extract_view_features)
+
+POSE_MODES = ("known", "sfm", "auto")
+
+
+@dataclass
+class InitConfig:
+    """Options of :func:`initialize` (the CLI exposes them)."""
+
+    max_features: int = DEFAULT_MAX_FEATURES   # per view, after pooling the selected bands
+    contrast_threshold: float = SFM_CONTRAST_THRESHOLD  # OpenCV SIFT (COLMAP-equivalent peak threshold)
+    root_sift: bool = True                      # RootSIFT descriptors (COLMAP's default normalisation)
+    min_inliers: int = 15                       # two-view verification and mapping
+    init_min_inliers: int | None = None         # initial pair; None: min(100, max(min_inliers, half the best pair))
+    min_registered_fraction: float = 0.5        # SfM must register at least this fraction of views
+    detect_max_px: int | None = 2048            # detect on an integer-downscaled copy above this size
+    detect_upsample: int = 0                    # detect on a ×n cubic-upsampled copy; 0 = auto (2 up to 256 px)
+    num_threads: int = 1                        # COLMAP mapping threads (1 = deterministic mapping)
+    match_threads: int = -1                     # COLMAP matching threads (-1 = all; results do not depend on it)
+    guided_matching: bool = True                # SfM: re-match verified pairs along their epipolar geometry
+    mapper_max_error_px: float = 2.0            # SfM: COLMAP's filter/merge/complete reprojection thresholds
+    min_track_length: int = 2                   # sparse points seen in fewer views are dropped
+    max_point_error_px: float = 2.0             # sparse points with a larger mean reprojection error are dropped
+    seed: int = 0
+    keep_database: bool = False                 # keep OUT/colmap/database.db
+
+
+@dataclass
+class InitResult:
+    """Cameras and sparse points of a scene (frames in the scene's order)."""
+
+    points: np.ndarray          # [P, 3] metres, ENU
+    colors: np.ndarray          # [P, k] mean observed reflectance in the selected bands
+    c2w: np.ndarray             # [F, 4, 4] OpenGL camera-to-world
+    registered: np.ndarray      # [F] bool: pose from SfM (True) or taken from transforms.json
+    track_length: np.ndarray    # [P]
+    error_px: np.ndarray        # [P] mean reprojection error of each point
+    band_indices: list[int]
+    report: dict = field(default_factory=dict)
+
+
+def _frames_have_poses(scene) -> bool:
+    try:
+        meta = json.loads((Path(scene.root) / "transforms.json").read_text())
+        return all(fr.get("transform_matrix") is not None for fr in meta.get("frames", []))
+    except (OSError, ValueError):
+        return True
+
+
+def _check_bands(scene, band_indices) -> list[int]:
+    b = [int(i) for i in np.asarray(band_indices).reshape(-1)]
+    n_b = len(scene.wavelengths_nm)
+    if not b:
+        raise UserError("no bands selected for initialisation", field="bands")
+    bad = [i for i in b if not 0 <= i < n_b]
+    if bad:
+        raise UserError(f"band indices {bad} outside 0..{n_b - 1}", field="bands")
+    if len(set(b)) != len(b):
+        raise UserError(f"band indices repeat: {b}", field="bands")
+    return b
+
+
+def extract_features(scene, band_indices, config: InitConfig, progress: bool = False, keep_cubes: bool = True,
+                     mode: str = "sfm"):
+    """Features of every view on the selected bands. Returns (features [F], cubes [F] or None, factor)."""
+    factor = detect_downscale_factor(scene.width, scene.height, config.detect_max_px)
+    feats: list[ViewFeatures] = []
+    cubes = [] if keep_cubes else None
+    it = range(len(scene.frames))
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="features", unit="view")
+    from brfgs.bands.efc import make_sift
+    from brfgs.bands.select import _block_mean
+
+    sift = make_sift(contrast_threshold=config.contrast_threshold)
+    for i in it:
+        cube = scene.load_image(i, bands=band_indices)  # [H, W, k]
+        small = _block_mean(cube, factor)
+        up = _upsample(scene, config, mode)
+        if up > 1:  # pixel-centre aligned cubic upsampling
+            import cv2
+
+            small = np.stack([cv2.resize(small[:, :, j], None, fx=up, fy=up, interpolation=cv2.INTER_CUBIC)
+                              for j in range(small.shape[-1])], -1)
+        f = extract_view_features(small, np.isfinite(small).all(-1), config.max_features, sift=sift,
+                                  use_root_sift=config.root_sift)
+        scale = factor / up
+        if scale != 1:  # pixel-edge coordinates (COLMAP convention) scale linearly
+            f.xy = (f.xy * scale).astype(np.float32)
+            f.scale = (f.scale * scale).astype(np.float32)
+        feats.append(f)
+        if keep_cubes:
+            cubes.append(cube)
+    return feats, cubes, factor
+
+
+def _upsample(scene, config: InitConfig, mode: str = "sfm") -> int:
+    """Upsampling factor for feature detection. Auto: 2 for SfM on small images (<= 256 px), which
+    then give many more usable SIFT features on a 2x cubic-upsampled copy (simulated testsite 128^2:
+    176 -> 2881 per view, 39 -> 45 of 49 views registered, camera error 1.4 % -> 0.84 % of the
+    distance), beyond the x2 of SIFT's own first octave; 1 for known poses (about 4x faster)."""
+    if config.detect_upsample and config.detect_upsample >= 1:
+        return int(config.detect_upsample)
+    return 2 if mode == "sfm" and max(scene.width, scene.height) <= 256 else 1
+
+
+def _sample(cube: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Bilinear samples [N, k] of ``cube`` [H, W, k] at COLMAP pixel coordinates ``xy`` [N, 2]."""
+    h, w = cube.shape[:2]
+    x = np.clip(xy[:, 0] - 0.5, 0, w - 1)
+    y = np.clip(xy[:, 1] - 0.5, 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(int), w - 2 if w > 1 else 0)
+    y0 = np.minimum(np.floor(y).astype(int), h - 2 if h > 1 else 0)
+    x1 = np.minimum(x0 + 1, w - 1)
+    y1 = np.minimum(y0 + 1, h - 1)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    return ((1 - fx) * (1 - fy) * cube[y0, x0] + fx * (1 - fy) * cube[y0, x1]
+            + (1 - fx) * fy * cube[y1, x0] + fx * fy * cube[y1, x1])
+
+
+def point_colors(scene, band_indices, cubes, obs_frame, obs_point, obs_xy, n_points) -> np.ndarray:
+    """Mean observed reflectance [P, k] of each point over its track (NaN samples ignored)."""
+    k = len(band_indices)
+    acc = np.zeros((n_points, k))
+    cnt = np.zeros((n_points, k))
+    for f in np.unique(obs_frame):
+        cube = cubes[f] if cubes is not None else scene.load_image(int(f), bands=band_indices)
+        sel = obs_frame == f
+        vals = _sample(cube, obs_xy[sel])
+        ok = np.isfinite(vals)
+        np.add.at(acc, obs_point[sel], np.where(ok, vals, 0.0))
+        np.add.at(cnt, obs_point[sel], ok)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (acc / cnt).astype(np.float32)
+
+
+def reprojection_errors(points, c2w, intr, obs_frame, obs_point, obs_xy) -> np.ndarray:
+    """Pixel distance [O] between each observation and the projection of its point with ``c2w``."""
+    err = np.zeros(len(obs_frame))
+    for f in np.unique(obs_frame):
+        sel = obs_frame == f
+        uv, _ = project_points(points[obs_point[sel]], c2w[f], intr)
+        err[sel] = np.linalg.norm(uv - obs_xy[sel], axis=1)
+    return err
+
+
+def geometry_metrics(feats: list[ViewFeatures], stats) -> dict:
+    """The Table 2 geometry columns of one band configuration."""
+    return {
+        "mean_detected_features_per_view": float(np.mean([f.n_detected for f in feats])),
+        "mean_used_features_per_view": float(np.mean([len(f.xy) for f in feats])),
+        "putative_matches": int(stats.putative_total),
+        "verified_matches": int(stats.verified_total),
+        "matching_success_rate": stats.success_rate,
+        "image_pairs": int(stats.pairs_total),
+        "verified_image_pairs": int(stats.pairs_verified),
+    }
+
+
+DEFINITIONS = {
+    "mean_detected_features_per_view": "SIFT keypoints per view on the 8-bit stretched selected bands, pooled "
+                                       "over bands with duplicates (< 1.5 px from a stronger keypoint with a "
+                                       "descriptor less than 0.5 rad away) removed, before the max_features cap",
+    "putative_matches": "COLMAP exhaustive SIFT matches over all view pairs (ratio test 0.8, max distance 0.7, "
+                        "cross check)",
+    "verified_matches": "inlier matches of the two-view geometries accepted by COLMAP's RANSAC verification "
+                        "(essential/fundamental/homography, 4 px, >= min_inliers)",
+    "matching_success_rate": "verified_matches / putative_matches",
+    "mean_track_length": "mean number of views observing a sparse point",
+    "mean_reprojection_error_px": "mean over observations of the pixel distance to the projected point "
+                                  "with the final cameras",
+}
+
+
+def match_features(scene, feats, work_dir: Path, config: InitConfig, guided: bool = False):
+    """Write the COLMAP database and match; returns (db_path, image_ids, MatchStats)."""
+    from brfgs.init import colmap as C
+
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db_path = work_dir / "database.db"
+    names = [f.name for f in scene.frames]
+    ids = C.write_database(db_path, scene.intrinsics, names, feats)
+    C.match_exhaustive(db_path, num_threads=config.match_threads, seed=config.seed, min_inliers=config.min_inliers,
+                       guided=guided)
+    return db_path, ids, C.match_stats(db_path, ids)
+
+
+def _sfm_failure(scene, stats, registered_names: list[str], reason: str) -> UserError:
+    names = [f.name for f in scene.frames]
+    failed = [n for n in names if n not in set(registered_names)]
+    order = np.argsort(stats.verified_per_image, kind="stable")
+    weakest = [f"{names[i]} ({int(stats.verified_per_image[i])} verified matches with "
+               f"{int(stats.verified_pairs_per_image[i])} views)" for i in order[:8]]
+    listing = ", ".join(failed[:20]) + (f" and {len(failed) - 20} more" if len(failed) > 20 else "")
+    return UserError(
+        f"SfM failed: {reason}. Views not registered: {listing or 'none'}. Views with the fewest verified "
+        f"matches: {', '.join(weakest)}. Matching success rate "
+        f"{(stats.success_rate or 0.0):.1%} ({stats.verified_total} of {stats.putative_total} putative matches). "
+        f"Try `--poses known` to triangulate with the poses in transforms.json, or another band strategy.",
+        file=Path(scene.root) / "transforms.json", field="frames")
+
+
+def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | None = None,
+               config: InitConfig | None = None, selection=None, progress: bool = False) -> InitResult:
+    """Cameras and sparse points from the bands ``band_indices`` of ``scene`` (see module docstring).
+
+    ``out_dir``: when given, OUT/points.ply, cameras.json, init_report.{json,md} (and bands.json
+    when ``selection`` is given) are written there; the COLMAP work files go to OUT/colmap.
+    """
+    config = config or InitConfig()
+    if poses not in POSE_MODES:
+        raise UserError(f"--poses must be one of {', '.join(POSE_MODES)}, got {poses!r}", field="poses")
+    bands = _check_bands(scene, band_indices)
+    n_frames = len(scene.frames)
+    t0 = time.perf_counter()
+    timings = {}
+    names = [f.name for f in scene.frames]
+
+    mode = poses
+    if poses == "auto":
+        mode = "known" if _frames_have_poses(scene) else "sfm"
+
+    tmp = None
+    if out_dir is not None:
+        work = Path(out_dir) / "colmap"
+    else:
+        tmp = tempfile.mkdtemp(prefix="brfgs_init_")
+        work = Path(tmp)
+    try:
+        feats, cubes, factor = extract_features(scene, bands, config, progress,
+                                                keep_cubes=_cube_bytes(scene, bands) < 512 * 2**20, mode=mode)
+        timings["features"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        db_path, _ids, stats = match_features(scene, feats, work, config)
+        timings["matching"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        from brfgs.init import colmap as C
+
+        known_c2w = np.stack([np.asarray(f.c2w, float) for f in scene.frames])  # [F, 4, 4]
+        alignment = None
+        fallback = None
+        guided_stats = None
+        if mode == "sfm":
+            try:
+                sfm_db, sfm_stats = db_path, stats
+                if config.guided_matching:  # Table 2 metrics stay those of plain matching (above)
+                    sfm_db, _, guided_stats = match_features(scene, feats, work / "guided", config, guided=True)
+                    sfm_stats = guided_stats
+                rec, arr, alignment = _run_sfm(scene, sfm_db, work / "guided" if config.guided_matching else work,
+                                               sfm_stats, config, names, known_c2w)
+            except UserError as exc:
+                if poses != "auto":
+                    raise
+                fallback = str(exc)
+                mode = "known"
+        if mode == "known":
+            rec = C.triangulate_known(db_path, work, names, known_c2w, seed=config.seed,
+                                      num_threads=config.num_threads, min_inliers=config.min_inliers)
+            arr = C.reconstruction_arrays(rec, names)
+            if len(arr.points) == 0:
+                raise UserError(
+                    f"triangulation with the known poses produced no points ({stats.verified_total} verified "
+                    f"matches over {stats.pairs_verified} view pairs); check the poses in transforms.json and the "
+                    f"selected bands", file=Path(scene.root) / "transforms.json", field="frames")
+        timings["reconstruction"] = time.perf_counter() - t1
+        registered = np.array([c is not None for c in arr.c2w])
+        c2w = np.stack([arr.c2w[i] if registered[i] else known_c2w[i] for i in range(n_frames)])
+        points = arr.points
+        if mode == "known":  # poses must be untouched by the triangulator
+            drift = max(float(np.abs(arr.c2w[i] - known_c2w[i]).max()) for i in range(n_frames) if registered[i])
+            if drift > 1e-6:
+                raise RuntimeError(f"COLMAP's triangulator changed the known poses (by {drift:g})")
+        rep_err = reprojection_errors(points, c2w, scene.intrinsics, arr.obs_frame, arr.obs_point, arr.obs_xy)
+        point_err = np.zeros(len(points))
+        if len(points):
+            np.add.at(point_err, arr.obs_point, rep_err)
+            point_err /= np.maximum(arr.track_len, 1)
+        # keep well-constrained points: enough views and a small mean reprojection error
+        keep = (arr.track_len >= config.min_track_length) & (point_err <= config.max_point_error_px)
+        n_before = len(points)
+        if not keep.all():
+            new_id = np.cumsum(keep) - 1
+            ok_obs = keep[arr.obs_point]
+            arr.obs_frame, arr.obs_xy = arr.obs_frame[ok_obs], arr.obs_xy[ok_obs]
+            arr.obs_point = new_id[arr.obs_point[ok_obs]]
+            rep_err = rep_err[ok_obs]
+            points, point_err, arr.track_len = points[keep], point_err[keep], arr.track_len[keep]
+        if len(points) == 0:
+            raise UserError(f"no sparse point has a track of >= {config.min_track_length} views and a mean "
+                            f"reprojection error <= {config.max_point_error_px} px ({n_before} before filtering)",
+                            field="poses")
+        colors = point_colors(scene, bands, cubes, arr.obs_frame, arr.obs_point, arr.obs_xy, len(points))
+        from brfgs.init.truth import truth_checks
+
+        report = {
+            "scene": str(scene.root),
+            "poses": mode,
+            "poses_requested": poses,
+            "fallback": fallback,
+            "bands": {"indices": bands, "wavelengths_nm": [float(scene.wavelengths_nm[i]) for i in bands],
+                      "strategy": getattr(selection, "strategy", None)},
+            "views": n_frames,
+            "registered_views": int(registered.sum()),
+            "unregistered_views": [names[i] for i in range(n_frames) if not registered[i]],
+            "points": int(len(points)),
+            "points_removed_by_filter": int(n_before - len(points)),
+            "mean_track_length": float(arr.track_len.mean()) if len(points) else None,
+            "mean_reprojection_error_px": float(rep_err.mean()) if len(rep_err) else None,
+            "geometry": geometry_metrics(feats, stats),
+            "guided_verified_matches": None if guided_stats is None else int(guided_stats.verified_total),
+            "alignment": alignment,
+            "truth": truth_checks(scene, [c2w[i] if registered[i] else None for i in range(n_frames)], points),
+            "image_size": [int(scene.width), int(scene.height)],
+            "detect_downscale": int(factor),
+            "detect_upsample": _upsample(scene, config, "sfm" if mode == "sfm" or fallback else "known"),
+            "settings": asdict(config),
+            "timings_s": {k: round(v, 3) for k, v in timings.items()},
+            "definitions": DEFINITIONS,
+        }
+        result = InitResult(points, colors, c2w, registered, arr.track_len, point_err, bands, report)
+        if out_dir is not None:
+            write_outputs(Path(out_dir), scene, result, selection)
+        return result
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        elif not config.keep_database and out_dir is not None:
+            shutil.rmtree(Path(out_dir) / "colmap", ignore_errors=True)
+
+
+def _cube_bytes(scene, bands) -> int:
+    return len(scene.frames) * scene.width * scene.height * len(bands) * 4
+
+
+def _run_sfm(scene, db_path, work, stats, config: InitConfig, names, known_c2w):
+    """Incremental mapping, checks, and similarity alignment to the transforms.json camera centres."""
+    from brfgs.init import colmap as C
+    from brfgs.init.align import umeyama_robust
+
+    n = len(names)
+    if stats.pairs_verified == 0:
+        raise _sfm_failure(scene, stats, [], "no pair of views has enough verified matches "
+                                             f"(at least {config.min_inliers} inliers)")
+    init_min = config.init_min_inliers
+    if init_min is None:  # COLMAP's 100 unless small images cannot give that many
+        init_min = int(min(100, max(config.min_inliers, 0.5 * stats.max_pair_verified)))
+    rec = C.incremental_mapping(db_path, work, seed=config.seed, num_threads=config.num_threads,
+                                min_inliers=config.min_inliers, init_min_inliers=init_min,
+                                max_error_px=config.mapper_max_error_px)
+    if rec is None:
+        raise _sfm_failure(scene, stats, [], "incremental mapping found no initial pair")
+    arr = C.reconstruction_arrays(rec, names)
+    reg = [i for i in range(n) if arr.c2w[i] is not None]
+    need = max(3, int(np.ceil(config.min_registered_fraction * n)))
+    if len(reg) < need:
+        raise _sfm_failure(scene, stats, [names[i] for i in reg],
+                           f"only {len(reg)} of {n} views registered (at least {need} needed)")
+    src = np.array([arr.c2w[i][:3, 3] for i in reg])
+    dst = known_c2w[reg, :3, 3]
+    sim, inl = umeyama_robust(src, dst)
+    arr.points = sim.apply(arr.points) if len(arr.points) else arr.points
+    for i in reg:
+        arr.c2w[i] = sim.apply_c2w(arr.c2w[i])
+    res = np.linalg.norm(np.array([arr.c2w[i][:3, 3] for i in reg]) - dst, axis=1)
+    alignment = {"method": "Umeyama similarity of SfM camera centres onto transforms.json camera centres",
+                 **sim.to_json(), "views_used": int(inl.sum()),
+                 "views_rejected": [names[reg[j]] for j in range(len(reg)) if not inl[j]],
+                 "residual_m": {"median": float(np.median(res)), "max": float(res.max())}}
+    return rec, arr, alignment
+
+
+# ------------------------------------------------------------------------------------------ outputs
+def write_points_ply(path: Path, points, colors, wavelengths_nm, band_indices, track_length=None,
+                     error_px=None) -> None:
+    """Binary PLY: x, y, z (float32, m, ENU), red/green/blue (uint8 stretch of up to 3 bands for viewing),
+    refl_<band index> (float32 reflectance per selected band), track_length, error_px."""
+    import zlib  # noqa: F401
+
+    from plyfile import PlyData, PlyElement
+
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    cols = np.asarray(colors, np.float32).reshape(len(pts), -1)
+    dtype = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    dtype += [(f"refl_{int(b)}", "f4") for b in band_indices]
+    dtype += [("track_length", "i4"), ("error_px", "f4")]
+    v = np.zeros(len(pts), dtype=dtype)
+    v["x"], v["y"], v["z"] = pts.T
+    rgb = cols[:, :3] if cols.shape[1] >= 3 else np.repeat(cols[:, :1], 3, axis=1)
+    if len(pts):
+        hi = np.nanpercentile(rgb, 99, axis=0) if np.isfinite(rgb).any() else np.ones(3)
+        hi = np.where(np.isfinite(hi) & (hi > 0), hi, 1.0)
+        u8 = np.clip(np.nan_to_num(rgb / hi) * 255, 0, 255).astype(np.uint8)
+        v["red"], v["green"], v["blue"] = u8.T
+    for j, b in enumerate(band_indices):
+        v[f"refl_{int(b)}"] = cols[:, j]
+    if track_length is not None:
+        v["track_length"] = track_length
+    if error_px is not None:
+        v["error_px"] = error_px
+    comments = ["brfgs sparse points (ENU metres)",
+                "bands " + " ".join(f"{int(b)}:{float(w):.2f}nm" for b, w in zip(band_indices, wavelengths_nm))]
+    PlyData([PlyElement.describe(v, "vertex")], comments=comments).write(str(path))
+
+
+def write_outputs(out: Path, scene, res: InitResult, selection=None) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    wl = [float(scene.wavelengths_nm[i]) for i in res.band_indices]
+    write_points_ply(out / "points.ply", res.points, res.colors, wl, res.band_indices, res.track_length,
+                     res.error_px)
+    intr = scene.intrinsics
+    cams = {"convention": "nerfstudio transform_matrix: OpenGL camera-to-world, ENU metres",
+            "poses": res.report.get("poses"),
+            "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
+            "frames": [{"name": f.name, "transform_matrix": res.c2w[i].tolist(), "registered": bool(res.registered[i])}
+                       for i, f in enumerate(scene.frames)]}
+    (out / "cameras.json").write_text(json.dumps(cams, indent=1))
+    (out / "init_report.json").write_text(json.dumps(res.report, indent=1))
+    (out / "init_report.md").write_text(report_markdown(res.report))
+    if selection is not None:
+        (out / "bands.json").write_text(json.dumps(selection.to_json(), indent=1))
+
+
+def _fmt(x, spec=".3g"):
+    return "n/a" if x is None else format(x, spec)
+
+
+def _bands_text(b: dict) -> str:
+    pairs = list(zip(b["indices"], b["wavelengths_nm"]))
+    if len(pairs) <= 12:
+        return ", ".join(f"{i} ({w:.1f} nm)" for i, w in pairs)
+    return f"{len(pairs)} bands, {pairs[0][1]:.0f}-{pairs[-1][1]:.0f} nm"
+
+
+def report_markdown(r: dict) -> str:
+    g = r["geometry"]
+    lines = [f"# Initialisation report: {r['scene']}", "",
+             f"- poses: **{r['poses']}** (requested {r['poses_requested']})"
+             + (f"; SfM failed, fell back to transforms.json poses: {r['fallback']}" if r.get("fallback") else ""),
+             f"- bands ({r['bands']['strategy'] or 'given'}): {_bands_text(r['bands'])}",
+             f"- registered views: {r['registered_views']} / {r['views']}"
+             + (f" (not registered: {', '.join(r['unregistered_views'])})" if r["unregistered_views"] else ""),
+             f"- sparse points: {r['points']}, mean track length {_fmt(r['mean_track_length'])}, "
+             f"mean reprojection error {_fmt(r['mean_reprojection_error_px'])} px",
+             f"- detected features per view: {_fmt(g['mean_detected_features_per_view'], '.1f')}; "
+             f"matching success rate {_fmt(g['matching_success_rate'], '.1%')} "
+             f"({g['verified_matches']} verified / {g['putative_matches']} putative matches)"]
+    if r.get("alignment"):
+        a = r["alignment"]
+        lines.append(f"- alignment to ENU: scale {a['scale']:.4g}, centre residual median "
+                     f"{a['residual_m']['median']:.3g} m, max {a['residual_m']['max']:.3g} m")
+    t = r.get("truth")
+    if t:
+        lines += ["", "## Against truth", "",
+                  f"- camera-centre error: median {_fmt(t['camera_centre_error_rel']['median'], '.3%')}, "
+                  f"max {_fmt(t['camera_centre_error_rel']['max'], '.3%')} of the camera distance "
+                  f"({t['camera_distance_m_median']:.3g} m)"]
+        if t.get("point_to_surface_m"):
+            lines.append(f"- point-to-surface distance: median {t['point_to_surface_m']['median']:.4g} m "
+                         f"= {t['point_to_surface_rel']['median']:.3%} of the camera distance "
+                         f"(p90 {t['point_to_surface_rel']['p90']:.3%})")
+        else:
+            lines.append(f"- point-to-surface distance: n/a ({t.get('point_to_surface_m_reason')})")
+    if r.get("strategies"):
+        lines += ["", "## Band-selection strategies (paper Table 2, geometry columns)", "", strategies_table(r["strategies"])]
+    lines += ["", "## Definitions", ""] + [f"- {k}: {v}" for k, v in r["definitions"].items()]
+    return "\n".join(lines) + "\n"
+
+
+def strategies_table(rows: list[dict]) -> str:
+    """Markdown table of the Table 2 geometry columns."""
+    out = ["| Strategy | Bands (nm) | Detected features / view | Matching success rate | Verified matches |",
+           "|---|---|---|---|---|"]
+    for row in rows:
+        wl = row["wavelengths_nm"]
+        wl_s = ", ".join(f"{w:.0f}" for w in wl) if len(wl) <= 4 else f"{len(wl)} bands ({wl[0]:.0f}-{wl[-1]:.0f})"
+        out.append(f"| {row['label']} | {wl_s} | {row['mean_detected_features_per_view']:.0f} | "
+                   f"{_fmt(row['matching_success_rate'], '.1%')} | {row['verified_matches']} |")
+    return "\n".join(out)
+
+
+def strategy_ablation(scene, strategies=None, top: int = 3, stats=None, config: InitConfig | None = None,
+                      progress: bool = False) -> list[dict]:
+    """Table 2 geometry columns (detected features per view, matching success rate) for each strategy."""
+    from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES, compute_band_stats, select_bands
+
+    config = config or InitConfig()
+    strategies = list(strategies or TABLE2_STRATEGIES)
+    if stats is None:
+        stats = compute_band_stats(scene, progress=progress)
+    rows = []
+    tmp = Path(tempfile.mkdtemp(prefix="brfgs_ablation_"))
+    try:
+        for s in strategies:
+            sel = select_bands(scene, s, top=top, stats=stats)
+            feats, _, _ = extract_features(scene, sel.selected, config, progress=False, keep_cubes=False)
+            _, _, mstats = match_features(scene, feats, tmp / s, config)
+            row = {"strategy": s, "label": STRATEGY_LABELS.get(s, s), "bands": sel.selected,
+                   "wavelengths_nm": sel.selected_wavelengths_nm, **geometry_metrics(feats, mstats)}
+            rows.append(row)
+            if progress:
+                print(f"  {s:14s} features/view {row['mean_detected_features_per_view']:8.1f}  success "
+                      f"{_fmt(row['matching_success_rate'], '.1%')}", flush=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return rows
