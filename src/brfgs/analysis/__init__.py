@@ -1,0 +1,1 @@
+"""Analysis: evaluation metrics (metrics.py), BRF curves, products and export."""

@@ -1,0 +1,99 @@
+"""Training losses (paper eqs. 24-27), all masked: invalid (NaN/Inf) target pixels never count.
+
+Masking: invalid target pixels are replaced by the (detached) prediction so they give
+zero L1/cosine error and do not disturb the SSIM windows; means are over valid pixels.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+
+def fill_invalid(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """target [H,W,C] with invalid pixels (valid [H,W] False) set to pred.detach()."""
+    return torch.where(valid[..., None], target, pred.detach())
+
+
+def masked_l1(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Mean |pred - target| over valid pixels and channels (eq. 26 when C = B)."""
+    n = valid.sum().clamp_min(1) * pred.shape[-1]
+    t = fill_invalid(pred, target, valid)
+    return (pred - t).abs().sum() / n
+
+
+def masked_cos(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """Mean (1 - cosine similarity) of per-pixel spectra over valid pixels (eq. 27)."""
+    t = fill_invalid(pred, target, valid)
+    cos = (pred * t).sum(-1) / (pred.norm(dim=-1) * t.norm(dim=-1)).clamp_min(eps)
+    return ((1 - cos) * valid).sum() / valid.sum().clamp_min(1)
+
+
+def _gauss_window(size: int = 11, sigma: float = 1.5, dtype=torch.float32) -> torch.Tensor:
+    x = torch.arange(size, dtype=dtype) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return g / g.sum()
+
+
+def ssim_torch(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0, valid: torch.Tensor | None = None) -> torch.Tensor:
+    """Differentiable mean SSIM of [H, W, C] images (11x11 Gaussian window, sigma 1.5, 'valid').
+
+    With ``valid`` [H, W], only windows whose 11x11 support is entirely valid are averaged
+    (invalid pixels then get no gradient at all).
+    """
+    c = x.shape[-1]
+    g = _gauss_window(dtype=x.dtype)
+    wx = g.view(1, 1, 1, -1).repeat(c, 1, 1, 1)
+    wy = g.view(1, 1, -1, 1).repeat(c, 1, 1, 1)
+
+    def filt(img):
+        return F.conv2d(F.conv2d(img, wx, groups=c), wy, groups=c)
+
+    X = x.permute(2, 0, 1)[None]
+    Y = y.permute(2, 0, 1)[None]
+    c1 = (0.01 * data_range) ** 2
+    c2 = (0.03 * data_range) ** 2
+    mx, my = filt(X), filt(Y)
+    sxx = filt(X * X) - mx * mx
+    syy = filt(Y * Y) - my * my
+    sxy = filt(X * Y) - mx * my
+    m = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+    if valid is None or bool(valid.all()):
+        return m.mean()
+    inv = (~valid).to(x.dtype)[None, None]
+    box = torch.ones(1, 1, 11, 11, dtype=x.dtype)
+    ok = (F.conv2d(inv, box) < 0.5).expand_as(m)  # [1, C, H-10, W-10]
+    if not ok.any():
+        return m.sum() * 0 + 1.0
+    return torch.where(ok, m, torch.zeros_like(m)).sum() / ok.sum()
+
+
+def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, alpha: float) -> torch.Tensor:
+    """(1 - alpha) L1 + alpha D-SSIM (eq. 24); D-SSIM on the grayscale (band mean) images.
+
+    D-SSIM = 1 - SSIM; the grayscale image is scaled by its valid maximum so SSIM's
+    constants see a [0, 1] range.
+    """
+    l1 = masked_l1(pred, target, valid)
+    if alpha <= 0 or min(pred.shape[0], pred.shape[1]) < 11:
+        return l1
+    t = fill_invalid(pred, target, valid)
+    gp = pred.mean(-1, keepdim=True)
+    gt = t.mean(-1, keepdim=True)
+    scale = gt.detach()[valid].max().clamp_min(1e-6) if valid.any() else torch.tensor(1.0)
+    dssim = 1 - ssim_torch(gp / scale, gt / scale, valid=valid)
+    return (1 - alpha) * l1 + alpha * dssim
+
+
+def stage2_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, beta: float) -> torch.Tensor:
+    """(1 - beta) L_refl + beta L_cos (eqs. 25-27) over all bands."""
+    return (1 - beta) * masked_l1(pred, target, valid) + beta * masked_cos(pred, target, valid)
+
+
+@torch.no_grad()
+def masked_psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> float:
+    """PSNR (data range 1) over valid pixels, for progress bars."""
+    if not valid.any():
+        return float("nan")
+    mse = ((pred - target)[valid] ** 2).mean().clamp_min(1e-12)
+    return float(-10 * torch.log10(mse))

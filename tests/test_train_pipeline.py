@@ -1,0 +1,150 @@
+"""Training end to end on a tiny scene: losses decrease, resume reproduces, runs are protected."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from brfgs.errors import UserError
+from brfgs.train.checkpoint import load
+from brfgs.train.config import preset
+from brfgs.train.trainer import LoadedModel, Trainer, train
+from test_train_scene import make_plane_scene
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    torch.set_num_threads(1)
+    return make_plane_scene(tmp_path_factory.mktemp("plane") / "scene", w=64, h=48, n_bands=16)
+
+
+def _cfg(**kw):
+    base = dict(threads=1, stage1_steps=40, stage2_steps=40)
+    base.update(kw)
+    return preset("tiny", **base)
+
+
+def _halves(hist, phase):
+    loss = np.array([h[2] for h in hist if h[0] == phase])
+    k = len(loss) // 4
+    return loss[:k].mean(), loss[-k:].mean()
+
+
+def test_losses_decrease_in_both_stages_and_model_loads(scene, tmp_path):
+    tr = Trainer(scene, tmp_path / "run", _cfg(), progress=False, log=None)
+    path = tr.run()
+    for phase in ("stage1", "stage2"):
+        first, last = _halves(tr.history, phase)
+        assert last < first, (phase, first, last)
+    # self-describing model file: loads without the scene and renders a spectral cube
+    lm = LoadedModel(path)
+    assert lm.wavelengths_nm.shape == (16,)
+    assert len(lm.cameras) == 13 and lm.scene["sun_zenith_deg"] == 35.0
+    r = lm.render(lm.cameras[0], backend="torch")
+    assert r["cube"].shape == (48, 64, 16) and np.isfinite(r["cube"]).all()
+    tensors, meta = load(path)
+    assert all(isinstance(v, torch.Tensor) for v in tensors.values())
+    assert meta["config"]["variant"] == "brf" and meta["phase"] == "done"
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["status"] == "finished"
+
+
+def test_resume_after_interruption_reproduces_uninterrupted(scene, tmp_path):
+    cfg = _cfg(stage1_steps=24, stage2_steps=16, checkpoint_every=1000)
+    ref = train(scene, tmp_path / "a", cfg, progress=False, log=None)
+
+    def interrupt_at(phase_step):
+        def cb(phase, step):
+            if (phase, step) == phase_step:
+                raise KeyboardInterrupt
+        return cb
+
+    b = tmp_path / "b"
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C during stage 1 (between densifications)
+        train(scene, b, cfg, progress=False, callback=interrupt_at(("stage1", 15)), log=None)
+    assert json.loads((b / "run.json").read_text())["status"] == "interrupted"
+    with pytest.raises(KeyboardInterrupt):  # and again in stage 2
+        train(scene, b, cfg, progress=False, callback=interrupt_at(("stage2", 7)), log=None)
+    out = train(scene, b, cfg, progress=False, log=None)
+    ta, _ = load(ref)
+    tb, _ = load(out)
+    assert ta.keys() == tb.keys()
+    for k in ta:
+        assert ta[k].shape == tb[k].shape, k
+        assert torch.allclose(ta[k], tb[k], atol=1e-6, rtol=1e-5), (k, (ta[k] - tb[k]).abs().max())
+
+
+def test_finished_run_is_not_overwritten(scene, tmp_path):
+    cfg = _cfg(stage1_steps=3, stage2_steps=2)
+    p = train(scene, tmp_path / "r", cfg, progress=False, log=None)
+    before = p.stat().st_mtime_ns
+    with pytest.raises(UserError, match="--overwrite"):
+        train(scene, tmp_path / "r", cfg, progress=False, log=None)
+    assert p.stat().st_mtime_ns == before
+    # a foreign non-empty folder is refused too
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
+    with pytest.raises(UserError, match="not empty"):
+        train(scene, tmp_path / "other", cfg, progress=False, log=None)
+    assert (tmp_path / "other" / "notes.txt").read_text() == "mine"
+
+
+def test_nan_pixels_are_masked(scene, tmp_path):
+    from brfgs.train.losses import masked_cos, masked_l1, stage1_loss, stage2_loss
+
+    g = torch.Generator().manual_seed(0)
+    pred = torch.rand(20, 20, 5, generator=g, requires_grad=True)
+    tgt = torch.rand(20, 20, 5, generator=g)
+    valid = torch.ones(20, 20, dtype=torch.bool)
+    valid[:5] = False
+    garbage = tgt.clone()
+    garbage[:5] = 1e6  # what sits under invalid pixels must not matter
+    for fn in (masked_l1, masked_cos):
+        a, b = fn(pred, tgt, valid), fn(pred, garbage, valid)
+        assert torch.allclose(a, b)
+        ref = fn(pred[5:], tgt[5:], torch.ones(15, 20, dtype=torch.bool))
+        assert torch.allclose(a, ref)
+    loss = stage2_loss(pred, garbage, valid, 0.5) + stage1_loss(pred, garbage, valid, 0.2)
+    loss.backward()
+    assert torch.isfinite(pred.grad).all() and (pred.grad[:5] == 0).all()
+    assert math.isfinite(float(loss))
+
+
+def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
+    cfg = _cfg(stage1_steps=6, stage2_steps=6)
+    train(scene, tmp_path / "full", cfg, progress=False, log=None)
+    s1 = tmp_path / "full" / "checkpoints" / "stage1.safetensors"
+    for variant in ("sh", "neural"):
+        from dataclasses import replace
+
+        p = train(scene, tmp_path / variant, replace(cfg, variant=variant), progress=False, from_stage1=s1, log=None)
+        lm = LoadedModel(p)
+        assert lm.meta["appearance"] == variant
+        # same geometry as the stage-1 run
+        t_full, _ = load(s1)
+        assert torch.equal(lm.model.means, t_full["param.means"])
+        r = lm.render(lm.cameras[1], backend="torch")
+        assert r["cube"].shape == (48, 64, 16) and np.isfinite(r["cube"]).all()
+    # joint training: one phase, geometry moves together with the BRDF head
+    tr = Trainer(scene, tmp_path / "joint", _cfg(stage1_steps=6, stage2_steps=6, joint=True), progress=False, log=None)
+    tr.run()
+    assert {h[0] for h in tr.history} == {"joint"} and len(tr.history) == 12
+    with pytest.raises(UserError):
+        train(scene, tmp_path / "bad", _cfg(joint=True), progress=False, from_stage1=s1, log=None)
+
+
+def test_streaming_and_patch_training(scene, tmp_path):
+    """Cubes not cached (cache_gib=0) and random 24x24 patches: trains and evaluates."""
+    from brfgs.train.evaluate import evaluate_run
+
+    cfg = _cfg(stage1_steps=4, stage2_steps=4, cache_gib=0.0, patch_px=24)
+    tr = Trainer(scene, tmp_path / "p", cfg, progress=False, log=None)
+    tr.run()
+    assert not tr.store("full").cached and not tr.store("full").cache
+    assert all(math.isfinite(h[2]) for h in tr.history)
+    m = evaluate_run(tmp_path / "p", backend="torch", write_images=False, progress=False)
+    assert m["against"]["truth"]["mean"]["psnr"] is not None
