@@ -151,15 +151,18 @@ def scene_extent(points: np.ndarray) -> float:
     return float(max(0.5 * math.sqrt(((hi - lo) ** 2).sum()), 1e-3))
 
 
-def surface_fill(points: np.ndarray, n_target: int) -> np.ndarray:
+def surface_fill(points: np.ndarray, n_target: int, cover_xy: np.ndarray | None = None, keep=None) -> np.ndarray:
     """Extra points [M, 3] on a 2.5-D surface through the sparse points (denser start for short schedules).
 
     The sparse points' heights z(x, y) are interpolated linearly over their Delaunay
-    triangulation; a regular xy grid of about ``n_target`` nodes inside the convex hull of
-    the points (2-98 percentile box) gets the interpolated heights. Suited to UAV scenes
-    seen from above; 3D structure beyond a height field is left to densification.
+    triangulation (nearest sparse point outside it). A regular xy grid of about ``n_target``
+    nodes covers the box of ``cover_xy`` [Q, 2] (e.g. the ground footprints of the training
+    images, so every pixel sees a Gaussian from the start) or, without it, the convex hull
+    of the points (2-98 percentile box). ``keep(xyz [M, 3]) -> bool [M]`` drops nodes (e.g.
+    those no training view sees). Suited to UAV scenes seen from above; 3D structure beyond a
+    height field is left to densification.
     """
-    from scipy.interpolate import LinearNDInterpolator
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
     from scipy.spatial import Delaunay
 
     p = np.asarray(points, np.float64)
@@ -170,16 +173,33 @@ def surface_fill(points: np.ndarray, n_target: int) -> np.ndarray:
         tri = Delaunay(xy)
     except Exception:  # degenerate (collinear) points
         return np.zeros((0, 3))
-    lo = np.percentile(xy, 2, axis=0)
-    hi = np.percentile(xy, 98, axis=0)
+    if cover_xy is not None and len(cover_xy):
+        c = np.asarray(cover_xy, np.float64)
+        lo, hi = c.min(0), c.max(0)
+    else:
+        lo = np.percentile(xy, 2, axis=0)
+        hi = np.percentile(xy, 98, axis=0)
     area = float(np.prod(np.maximum(hi - lo, 1e-6)))
-    step = math.sqrt(area / n_target)
-    gx = np.arange(lo[0] + step / 2, hi[0], step)
-    gy = np.arange(lo[1] + step / 2, hi[1], step)
-    g = np.stack(np.meshgrid(gx, gy, indexing="xy"), -1).reshape(-1, 2)
-    g = g[tri.find_simplex(g) >= 0]
-    if g.shape[0] == 0:
-        return np.zeros((0, 3))
-    z = LinearNDInterpolator(tri, p[:, 2])(g)
-    ok = np.isfinite(z)
-    return np.concatenate([g[ok], z[ok, None]], 1)
+    n_grid = n_target
+    g = None
+    for _ in range(4):  # grid spacing so that about n_target nodes survive the filters
+        step = math.sqrt(area / n_grid)
+        gx = np.arange(lo[0] + step / 2, hi[0], step)
+        gy = np.arange(lo[1] + step / 2, hi[1], step)
+        g = np.stack(np.meshgrid(gx, gy, indexing="xy"), -1).reshape(-1, 2)
+        if cover_xy is None:
+            g = g[tri.find_simplex(g) >= 0]
+        if g.shape[0] == 0:
+            return np.zeros((0, 3))
+        z = LinearNDInterpolator(tri, p[:, 2])(g)
+        out_hull = ~np.isfinite(z)
+        if cover_xy is not None and out_hull.any():
+            z[out_hull] = NearestNDInterpolator(xy, p[:, 2])(g[out_hull])
+        ok = np.isfinite(z)
+        g = np.concatenate([g[ok], z[ok, None]], 1)
+        if keep is not None:
+            g = g[np.asarray(keep(g), bool)]
+        if g.shape[0] >= 0.8 * n_target or g.shape[0] == 0:
+            break
+        n_grid = int(n_grid * n_target / max(g.shape[0], 1)) + 1
+    return g

@@ -370,7 +370,8 @@ class Trainer:
         }
         pts, cols = np.asarray(init.points, np.float64), np.asarray(init.colors, np.float64)
         if cfg.init_fill_points > 0:
-            extra = surface_fill(pts, cfg.init_fill_points)
+            cover, seen = self._ground_footprints(pts, init.c2w)
+            extra = surface_fill(pts, cfg.init_fill_points, cover_xy=cover, keep=seen)
             if extra.shape[0]:
                 pts = np.concatenate([pts, extra], 0)
                 cols = np.concatenate([cols, np.full((extra.shape[0], cols.shape[1]), np.nan)], 0)
@@ -390,6 +391,32 @@ class Trainer:
             self._init_head()
         self.phase = self.phases()[0][0]
         self.step = 0
+
+    def _ground_footprints(self, pts: np.ndarray, c2w: np.ndarray):
+        """Where the training images see the ground: (xy [Q, 2] of their border rays on the plane at the
+        points' median height, keep(xyz [M, 3]) -> bool [M]: inside at least one training image)."""
+        from brfgs.data.cameras import pixel_rays, project_points
+
+        sc = self.scene
+        z0 = float(np.median(pts[:, 2]))
+        cover = []
+        for i in sc.train_indices:
+            o, d = pixel_rays(c2w[i], sc.intrinsics)
+            border = np.concatenate([o[0], o[-1], o[:, 0], o[:, -1]]), np.concatenate([d[0], d[-1], d[:, 0], d[:, -1]])
+            down = border[1][:, 2] < -1e-3
+            t = (z0 - border[0][down, 2]) / border[1][down, 2]
+            cover.append((border[0][down] + t[:, None] * border[1][down])[:, :2])
+        cover = np.concatenate(cover, 0) if cover else np.zeros((0, 2))
+
+        def seen(xyz: np.ndarray) -> np.ndarray:
+            ok = np.zeros(xyz.shape[0], bool)
+            for i in sc.train_indices:
+                uv, depth = project_points(xyz, c2w[i], sc.intrinsics)
+                uv, depth = np.asarray(uv), np.asarray(depth)
+                ok |= (depth > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < sc.width) & (uv[:, 1] < sc.height)
+            return ok
+
+        return cover, seen
 
     def _train_stores(self):
         if not hasattr(self, "_stores"):
@@ -673,7 +700,7 @@ class Trainer:
                 self.opt.step(params)
                 self.step += 1
                 if densify:
-                    self._maybe_refine(self.step)
+                    self._maybe_refine(self.step, steps)
                 lv = float(loss.detach())
                 self.history.append((phase, self.step, lv, ps))
                 if self.step % c.log_every == 0 or self.step == steps:
@@ -690,9 +717,12 @@ class Trainer:
         if bar is not None:
             bar.close()
 
-    def _maybe_refine(self, step: int) -> None:
+    def _maybe_refine(self, step: int, steps: int | None = None) -> None:
         d = self.cfg.densify
-        if d.refine_start < step <= d.refine_stop and step % d.refine_every == 0:
+        # densify at most over the first 3/4 of the phase (3DGS: 15k of 30k steps) and never reset
+        # opacities after that: a late reset leaves the frozen stage-2 geometry nearly transparent
+        stop = d.refine_stop if steps is None else min(d.refine_stop, int(0.75 * steps))
+        if d.refine_start < step <= stop and step % d.refine_every == 0:
             cap = d.max_gaussians
             if self.cfg.max_gaussians_per_px > 0:
                 cap = min(cap, int(self.cfg.max_gaussians_per_px * self.scene.width * self.scene.height))
@@ -700,7 +730,7 @@ class Trainer:
             if self.progress and step % (d.refine_every * 10) == 0:
                 pass
             self._last_refine = info
-        if d.reset_every > 0 and step % d.reset_every == 0 and step <= d.refine_stop:
+        if d.reset_every > 0 and step % d.reset_every == 0 and step < stop:
             reset_opacity(self.model, self.opt, self.dstate, d)
 
     # -------------------------------------------------------------------------------- checkpoints

@@ -1,0 +1,52 @@
+"""Initial surface fill covers what the cameras see; no opacity reset at the end of a phase."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+
+from brfgs.model.densify import DensifyConfig, DensifyState
+from brfgs.model.gaussians import init_from_points, surface_fill
+from brfgs.model.optim import NamedAdam
+from brfgs.train.config import TrainConfig
+from brfgs.train.trainer import Trainer
+
+
+def _points():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-5, 5, (40, 2))
+    return np.concatenate([xy, (0.1 * xy[:, :1] + 2.0)], 1)  # plane z = 2 + 0.1 x
+
+
+def test_fill_without_cover_stays_in_hull():
+    g = surface_fill(_points(), 500)
+    assert g.shape[0] > 300
+    assert np.abs(g[:, :2]).max() <= 5.0
+    np.testing.assert_allclose(g[:, 2], 2 + 0.1 * g[:, 0], atol=1e-9)  # linear interpolation is exact on a plane
+
+
+def test_fill_with_cover_reaches_the_footprint_and_keeps_filter():
+    cover = np.array([[-20.0, -20.0], [20.0, 20.0]])
+    g = surface_fill(_points(), 1000, cover_xy=cover)
+    assert g[:, 0].min() < -18 and g[:, 0].max() > 18 and g[:, 1].min() < -18 and g[:, 1].max() > 18
+    assert np.isfinite(g).all()
+    # outside the sparse points' hull the height is the nearest point's (within the points' range)
+    assert g[:, 2].min() >= 2 + 0.1 * -5 - 1e-9 and g[:, 2].max() <= 2 + 0.1 * 5 + 1e-9
+    kept = surface_fill(_points(), 1000, cover_xy=cover, keep=lambda p: p[:, 0] > 0)
+    assert (kept[:, 0] > 0).all() and kept.shape[0] >= 800  # about n_target nodes survive the filter
+
+
+def _fake_trainer(reset_every, refine_stop):
+    m = init_from_points(_points(), np.full((40, 3), 0.2), 4, init_opacity=0.9)
+    cfg = TrainConfig(densify=DensifyConfig(refine_start=10_000, refine_stop=refine_stop, reset_every=reset_every),
+                      max_gaussians_per_px=0.0)
+    return SimpleNamespace(cfg=cfg, model=m, opt=NamedAdam({}), dstate=DensifyState(m.n), meta={"extent_m": 5.0},
+                           gen=torch.Generator().manual_seed(0), progress=False, scene=SimpleNamespace(width=8, height=8))
+
+
+def test_no_opacity_reset_in_the_last_quarter_of_a_phase():
+    t = _fake_trainer(reset_every=100, refine_stop=10_000)
+    Trainer._maybe_refine(t, 100, steps=100)  # the last step of a 100-step phase
+    assert float(t.model.opacities.min()) > 0.8
+    Trainer._maybe_refine(t, 100, steps=1000)  # early in a long phase: 3DGS opacity reset
+    assert float(t.model.opacities.max()) < 0.02
