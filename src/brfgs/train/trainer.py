@@ -358,7 +358,7 @@ class Trainer:
         t = time.perf_counter()
         init = initialize(sc, bands, poses=cfg.poses, out_dir=self.out / "init", selection=sel, progress=self.progress)
         self.timings["init"] = time.perf_counter() - t
-        self.log(f"init: {init.points.shape[0]} points ({init.report.get('mode', cfg.poses)})")
+        self.log(f"init: {init.points.shape[0]} points ({init.report.get('poses', cfg.poses)})")
         cir_idx = cir_band_indices(sc.wavelengths_nm)
         cir_sc = cir_scale(sc)
         self.meta = {
