@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 
 # 1. Mitsuba's CPU (llvm_*) variants need LLVM >= 16; Debian 12 ships 15 by default.
-if ! ls /usr/lib/llvm-19/lib/libLLVM*.so* >/dev/null 2>&1; then
+if ! compgen -G "/usr/lib/*/libLLVM-19*.so*" >/dev/null && ! compgen -G "/usr/lib/llvm-19/lib/libLLVM*.so*" >/dev/null; then
   if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
     echo "setup: installing libllvm19 (for Mitsuba)"
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
