@@ -155,3 +155,15 @@ def test_nan_pixels_are_masked_and_counted(tmp_path):
     assert not mask[3, 4] and not mask[5, 6] and mask.sum() == mask.size - 2
     assert np.isnan(img[5, 6]).all()
     assert sc.invalid_counts[sc.frames[2].name] == 2
+
+
+def test_truth_cubes_follow_band_subset_roi_and_downscale(tmp_path):
+    root = make_scene(tmp_path / "s", w=24, h=16)
+    rng = np.random.default_rng(5)
+    clean = rng.random((16, 24, 6)).astype(np.float32)
+    write_envi(root / "truth" / "images" / "view_01.hdr", clean, np.linspace(420, 880, 6))
+    sc = read_scene(root, downscale=2, bands=[0, 5], roi=(2, 2, 20, 12))
+    t = sc.load_truth(1)
+    np.testing.assert_allclose(t, clean[2:14, 2:22][:, :, [0, 5]].reshape(6, 2, 10, 2, 2).mean(axis=(1, 3)), rtol=1e-6)
+    assert sc.load_truth(2) is None  # no truth for that frame
+    assert read_scene(make_scene(tmp_path / "n")).load_truth(0) is None  # no truth/ folder

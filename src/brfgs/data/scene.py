@@ -77,6 +77,7 @@ class Scene:
     split_seed: int = 0
     full_intrinsics: Intrinsics | None = None
     _sources: list[_CubeSource] = field(default_factory=list, repr=False)
+    _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
     invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
 
     # ----- geometry -------------------------------------------------------------------------------
@@ -159,6 +160,25 @@ class Scene:
         if n_bad:
             cube[~np.isfinite(cube)] = np.nan
         return cube
+
+    def load_truth(self, i: int) -> np.ndarray | None:
+        """Clean truth cube [H, W, B] of frame ``i`` from ``truth/images`` (simulated scenes), or None.
+
+        Band subset, ROI and downscale are applied as for :meth:`load_image`. For evaluation
+        only: truth is never read for training.
+        """
+        if self.truth_dir is None:
+            return None
+        hdr = self.truth_dir / "images" / f"{self.frames[i].name}.hdr"
+        if not hdr.is_file():
+            return None
+        full_wl = self._file_wavelengths
+        src = _open_cube(hdr, full_wl, self.root / TRANSFORMS, f"truth of {self.frames[i].name}")
+        if (src.lines, src.samples) != (self._sources[i].lines, self._sources[i].samples):
+            raise UserError(f"truth cube is {src.samples}x{src.lines}, the image "
+                            f"{self._sources[i].samples}x{self._sources[i].lines}", file=hdr)
+        return _read_block_averaged(src, self.band_indices, self.roi, self.downscale, (-np.inf, np.inf),
+                                    self.frames[i].name)
 
     def valid_mask(self, i: int, image: np.ndarray | None = None) -> np.ndarray:
         """Bool [H, W]: pixels whose every band is finite (pass ``image`` to avoid re-reading)."""
@@ -307,7 +327,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
                   dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
                   value_range=(float(lo), float(hi)), split_seed=split_seed, full_intrinsics=full_intr,
-                  _sources=sources)
+                  _sources=sources, _file_wavelengths=wl_all)
     return scene
 
 

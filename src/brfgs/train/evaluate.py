@@ -22,32 +22,7 @@ from brfgs.train.trainer import MODEL_FILE, LoadedModel
 
 def load_truth_cube(scene, name: str) -> np.ndarray | None:
     """Clean truth cube [H, W, B] of frame ``name`` (scene bands, ROI and downscale applied), or None."""
-    if scene.truth_dir is None:
-        return None
-    hdr = scene.truth_dir / "images" / f"{name}.hdr"
-    if not hdr.is_file():
-        return None
-    import spectral.io.envi as envi
-
-    from brfgs.data.cube_io import envi_image_path
-
-    img = envi_image_path(hdr)
-    if img is None:
-        raise UserError("truth cube has no data file", file=hdr)
-    raw = envi.open(str(hdr), str(img)).open_memmap(interleave="bip")
-    bands = np.asarray(scene.band_indices, int)
-    if raw.shape[2] <= bands.max():
-        raise UserError(f"truth cube has {raw.shape[2]} bands, the scene {len(bands)}", file=hdr)
-    f = int(getattr(scene, "downscale", 1))
-    roi = getattr(scene, "roi", None)
-    x0, y0, rw, rh = roi if roi is not None else (0, 0, raw.shape[1], raw.shape[0])
-    oh, ow = rh // f, rw // f
-    cube = np.asarray(raw[y0 : y0 + oh * f, x0 : x0 + ow * f][:, :, bands], np.float64)
-    if f > 1:
-        cube = cube.reshape(oh, f, ow, f, len(bands)).mean(axis=(1, 3))
-    if cube.shape[:2] != (scene.height, scene.width):
-        raise UserError(f"truth cube is {cube.shape[1]}x{cube.shape[0]}, the images {scene.width}x{scene.height}", file=hdr)
-    return cube.astype(np.float32)
+    return scene.load_truth(scene.frame_index(name))
 
 
 def _save_cir_png(path: Path, ref: np.ndarray, pred: np.ndarray, title: str) -> None:
