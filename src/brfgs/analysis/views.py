@@ -33,14 +33,20 @@ __all__ = [
 MAX_VIEW_ZENITH_DEG = 89.0  # a camera must look at the ground from above the horizon
 
 
-def check_zenith_deg(value: float, field: str, *, max_deg: float = MAX_VIEW_ZENITH_DEG) -> float:
-    """Validated zenith angle in degrees: finite and in [0, max_deg]; UserError otherwise."""
+def _finite_deg(value, field: str, what: str) -> float:
+    """``value`` as a finite float (degrees); UserError naming ``field`` otherwise."""
     try:
         v = float(value)
     except (TypeError, ValueError):
         raise UserError(f"expected a number of degrees, got {value!r}", field=field) from None
     if not math.isfinite(v):
-        raise UserError(f"zenith angle must be a finite number of degrees, got {value!r}", field=field)
+        raise UserError(f"{what} must be a finite number of degrees, got {value!r}", field=field)
+    return v
+
+
+def check_zenith_deg(value: float, field: str, *, max_deg: float = MAX_VIEW_ZENITH_DEG) -> float:
+    """Validated zenith angle in degrees: finite and in [0, max_deg]; UserError otherwise."""
+    v = _finite_deg(value, field, "zenith angle")
     if v < 0.0 or v >= 90.0:
         raise UserError(f"zenith angle must be in [0, 90) degrees (0 = nadir view / sun overhead), got {v:g}",
                         field=field)
@@ -52,13 +58,7 @@ def check_zenith_deg(value: float, field: str, *, max_deg: float = MAX_VIEW_ZENI
 
 def check_azimuth_deg(value: float, field: str) -> float:
     """Validated azimuth in degrees (finite; wrapped to [0, 360))."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise UserError(f"expected a number of degrees, got {value!r}", field=field) from None
-    if not math.isfinite(v):
-        raise UserError(f"azimuth must be a finite number of degrees, got {value!r}", field=field)
-    return v % 360.0
+    return _finite_deg(value, field, "azimuth") % 360.0
 
 
 def view_camera(view_zenith_deg: float, view_azimuth_deg: float, distance_m: float,

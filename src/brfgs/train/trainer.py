@@ -300,17 +300,10 @@ class Trainer:
         run = self.out / RUN_FILE
         if run.is_file():
             status = json.loads(run.read_text()).get("status")
-            if status == "finished":
-                if not self.overwrite:
-                    raise UserError("a finished training run exists here; pass --overwrite to replace it "
-                                    "(or choose another output folder)", file=self.out)
-                for name in OWNED_OUTPUTS:
-                    p = self.out / name
-                    if p.is_dir():
-                        shutil.rmtree(p)
-                    elif p.exists():
-                        p.unlink()
-            elif self.overwrite:
+            if status == "finished" and not self.overwrite:
+                raise UserError("a finished training run exists here; pass --overwrite to replace it "
+                                "(or choose another output folder)", file=self.out)
+            if self.overwrite:  # remove only what a training run writes
                 for name in OWNED_OUTPUTS:
                     p = self.out / name
                     if p.is_dir():
