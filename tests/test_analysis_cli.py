@@ -137,3 +137,9 @@ def test_bench_analysis_runs_on_a_small_synthetic_model(tmp_path):
     res = json.loads(out.read_text())
     assert res["n_gaussians"] == 2000 and res["bands"] == 164
     assert res["polar_map"]["directions"] == 8 and res["render"]["median_s"] > 0
+
+
+def test_export_refuses_unknown_view_dependence(run_dir, tmp_path, capsys):
+    assert main(["export", str(run_dir), str(tmp_path / "e"), "--view-dependence", "sometimes"]) == 2
+    assert "--view-dependence" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()

@@ -14,6 +14,8 @@ the ROI), so what a sensor would see of the ROI is what is averaged.
   mean spectra of the ROI, and the frame's view direction seen from the ROI centre.
 - :func:`nearest_to_plane` — the observations closest to the principal plane (Fig. 8).
 - :func:`log_error` — ln(reconstructed / observed) (Fig. 7).
+- :func:`truth_brf` — on simulated scenes, the truth BRF of the ROI rendered again by the
+  simulator for given directions; :func:`brf_error` — per-band RMSE / bias against it.
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ __all__ = [
     "frame_observations",
     "nearest_to_plane",
     "log_error",
+    "truth_brf",
+    "check_truth_spp",
+    "brf_error",
 ]
 
 MIN_ALPHA = 0.5
@@ -363,43 +368,94 @@ def has_simulator_truth(scene_root) -> bool:
     return scene_root is not None and (Path(scene_root) / "truth" / "scene.json").is_file()
 
 
+def simulator_sampler(scene_root) -> tuple[str, int]:
+    """(Mitsuba sampler, spp) of a simulated scene (truth/scene.json); scenes written before
+    the sampler option used "independent"."""
+    import json
+    from pathlib import Path
+
+    path = Path(scene_root) / "truth" / "scene.json"
+    try:
+        cfg = json.loads(path.read_text()).get("config", {})
+    except (OSError, ValueError, AttributeError):
+        raise UserError("unreadable simulator configuration", file=path, field="config") from None
+    return str(cfg.get("sampler", "independent")), int(cfg.get("spp", 0) or 0)
+
+
+def check_truth_spp(scene_root, spp: int | None, field: str = "--truth-spp") -> int | None:
+    """``spp`` validated for the scene's sampler: a power of 4 (1, 4, 16, 64, 256, ...) for
+    Mitsuba's low-discrepancy "ldsampler" (it would round other counts up silently), a power
+    of two for "independent". None keeps the scene's own spp."""
+    if spp is None:
+        return None
+    spp = int(spp)
+    sampler, _ = simulator_sampler(scene_root)
+    if spp < 1 or spp & (spp - 1):
+        raise UserError(f"samples per pixel must be a power of two, got {spp}", field=field)
+    if sampler == "ldsampler" and (spp.bit_length() - 1) % 2:
+        raise UserError(f"this scene was simulated with the 'ldsampler' sampler, whose samples per pixel must be a "
+                        f"power of 4 (1, 4, 16, 64, 256, ...), got {spp}", field=field)
+    return spp
+
+
 def truth_brf(scene_root, roi: ROI, view_zenith_deg, view_azimuth_deg, band_idx, *, distance_m: float,
-              size: int = 128, spp: int | None = None, progress: bool = False) -> ROIBRF:
+              size: int = 128, spp: int | None = None, progress: bool = False, chunk: int = 64) -> ROIBRF:
     """Truth BRF of ``roi``: the simulator renders the clean scene again from each direction
     (brfgs.sim.acquisition.render_scene_views: cameras at ``distance_m`` looking at the ROI
-    centre, the acquisition's field of view, ``size`` pixels) and the ROI is the set of pixels
-    whose *true* surface point (ray-cast depth) lies in it."""
+    centre, the acquisition's field of view, ``size`` pixels, ``spp`` samples per pixel —
+    default the scene's; see :func:`check_truth_spp`) and the ROI is the set of pixels
+    whose *true* surface point (ray-cast depth) lies in it. Directions are rendered ``chunk``
+    at a time (the simulator builds the scene once per call)."""
     from brfgs.data.cameras import Intrinsics
     from brfgs.sim.acquisition import render_scene_views
 
     zen = np.atleast_1d(np.asarray(view_zenith_deg, float))
     az = np.atleast_1d(np.asarray(view_azimuth_deg, float))
     bi = [int(b) for b in np.atleast_1d(band_idx)]
+    spp = check_truth_spp(scene_root, spp, field="spp")
     target = np.asarray(roi.centre_m, float)
     vals = np.full((zen.size, len(bi)), np.nan, np.float32)
     counts = np.zeros(zen.size, np.int64)
-    it = range(zen.size)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc="truth (simulator)", leave=False)
     wl = None
-    for k in it:
-        r = render_scene_views(scene_root, [(zen[k], az[k])], size=size, spp=spp, bands=bi, distance_m=distance_m,
-                               target_m=target)
+    chunk = max(1, int(chunk))
+    for k0 in range(0, zen.size, chunk):
+        dirs = [(zen[k], az[k]) for k in range(k0, min(zen.size, k0 + chunk))]
+        r = render_scene_views(scene_root, dirs, size=size, spp=spp, bands=bi, distance_m=distance_m,
+                               target_m=target, progress=progress)
         wl = r["wavelengths_nm"]
         intr = r["intrinsics"]
         if not isinstance(intr, Intrinsics):
             intr = Intrinsics(**intr)
-        depth = r["depth"][0].astype(float)
-        pts = unproject_depth(np.where(depth > 0, depth, np.nan), r["c2w"][0], intr)
-        ok = np.isfinite(pts).all(-1)
-        sel = np.zeros(ok.shape, bool)
-        sel[ok] = roi.contains(pts[ok])
-        refl = r["reflectance"][0]
-        sel &= np.isfinite(refl).all(-1)
-        counts[k] = int(sel.sum())
-        if counts[k]:
-            vals[k] = refl[sel].mean(0)
+        for j in range(len(dirs)):
+            k = k0 + j
+            depth = r["depth"][j].astype(float)
+            pts = unproject_depth(np.where(depth > 0, depth, np.nan), r["c2w"][j], intr)
+            ok = np.isfinite(pts).all(-1)
+            sel = np.zeros(ok.shape, bool)
+            sel[ok] = roi.contains(pts[ok])
+            refl = r["reflectance"][j]
+            sel &= np.isfinite(refl).all(-1)
+            counts[k] = int(sel.sum())
+            if counts[k]:
+                vals[k] = refl[sel].mean(0)
     return ROIBRF(zen, az, np.asarray(wl if wl is not None else []), vals, counts,
-                  {"distance_m": distance_m, "size_px": size, "target_m": target.tolist(), "source": "simulator"})
+                  {"distance_m": distance_m, "size_px": size, "spp": spp, "target_m": target.tolist(),
+                   "source": "simulator"})
+
+
+def brf_error(model: np.ndarray, truth: np.ndarray, wavelengths_nm) -> dict:
+    """Per-band error of model BRF [D, nb] against truth [D, nb] over the directions where both
+    are finite: RMSE, mean bias (model − truth) and mean relative error |model − truth| / truth."""
+    m = np.asarray(model, float)
+    t = np.asarray(truth, float)
+    ok = np.isfinite(m).all(1) & np.isfinite(t).all(1)
+    keys = [f"{w:.0f}" for w in wavelengths_nm]
+    if not ok.any():
+        return {"n_directions": 0, "rmse": {k: None for k in keys}, "mean_bias": {k: None for k in keys},
+                "mean_relative_error": {k: None for k in keys}, "reason": "no direction where both are seen"}
+    e = m[ok] - t[ok]
+    return {"n_directions": int(ok.sum()),
+            "rmse": {k: float(np.sqrt(np.mean(e[:, j] ** 2))) for j, k in enumerate(keys)},
+            "mean_bias": {k: float(np.mean(e[:, j])) for j, k in enumerate(keys)},
+            "mean_relative_error": {k: float(np.mean(np.abs(e[:, j]) / np.maximum(np.abs(t[ok, j]), 1e-6)))
+                                    for j, k in enumerate(keys)}}

@@ -4,6 +4,8 @@
   nearest the plane as points, the sun's zenith as a dashed line (hotspot side +).
 - :func:`plot_polar` — Fig. 9: polar heatmap over the view hemisphere per band, north up,
   azimuth clockwise, the sun as a red star.
+- :func:`plot_polar_truth` — per band: the model's polar map, the simulator's truth on its
+  (coarser) grid with the same colour scale, and model − truth on the truth grid.
 - :func:`plot_spectra` — Fig. 7: mean reconstructed vs observed (and truth) spectrum with the
   logarithmic error.
 - image writers for CIR composites, depth and normal maps, and product maps.
@@ -24,6 +26,7 @@ __all__ = [
     "save_map_png",
     "plot_principal_plane",
     "plot_polar",
+    "plot_polar_truth",
     "plot_spectra",
 ]
 
@@ -181,6 +184,67 @@ def plot_polar(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray
         fig.colorbar(pc, ax=ax, shrink=0.7, pad=0.1)
     for j in range(nb, nrow * ncol):
         axes[j // ncol][j % ncol].axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return Path(path)
+
+
+def _polar_edges(zenith_deg: np.ndarray, azimuth_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cell edges (zenith deg, azimuth rad) of a grid given by its cell centres."""
+    zenith_deg = np.asarray(zenith_deg, float)
+    azimuth_deg = np.asarray(azimuth_deg, float)
+    dz = float(zenith_deg[1] - zenith_deg[0]) if len(zenith_deg) > 1 else float(2 * zenith_deg[0])
+    da = float(azimuth_deg[1] - azimuth_deg[0]) if len(azimuth_deg) > 1 else 360.0
+    z_edges = np.concatenate([[zenith_deg[0] - dz / 2], zenith_deg + dz / 2])
+    a_edges = np.deg2rad(np.concatenate([[azimuth_deg[0] - da / 2], azimuth_deg + da / 2]))
+    return z_edges, a_edges
+
+
+def _polar_panel(fig, ax, zenith_deg, azimuth_deg, v, *, vmin, vmax, cmap, zmax, sun_zenith_deg, sun_azimuth_deg,
+                 title, label=""):
+    ax.set_theta_zero_location("N")
+    ax.set_theta_direction(-1)
+    z_edges, a_edges = _polar_edges(zenith_deg, azimuth_deg)
+    pc = ax.pcolormesh(a_edges, z_edges, np.ma.masked_invalid(v), cmap=cmap, vmin=vmin, vmax=vmax, shading="flat")
+    if sun_zenith_deg <= zmax:
+        ax.plot([np.deg2rad(sun_azimuth_deg)], [sun_zenith_deg], marker="*", color="red", ms=11,
+                markeredgecolor="white")
+    ax.set_ylim(0, zmax)
+    ax.set_title(title, fontsize=8, pad=10)
+    ax.tick_params(labelsize=6)
+    fig.colorbar(pc, ax=ax, shrink=0.7, pad=0.1, label=label)
+
+
+def plot_polar_truth(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray, values: np.ndarray,
+                     truth_zenith_deg: np.ndarray, truth_azimuth_deg: np.ndarray, truth_values: np.ndarray,
+                     model_at_truth: np.ndarray, wavelengths_nm: np.ndarray, sun_zenith_deg: float,
+                     sun_azimuth_deg: float, *, title: str = "", max_zenith_deg: float | None = None) -> Path:
+    """One row per band: model polar map [Z, A, nb] | simulator truth [Zt, At, nb] (same colour
+    scale) | model − truth on the truth grid (``model_at_truth`` [Zt, At, nb], diverging scale)."""
+    plt = _plt()
+    nb = values.shape[2]
+    fig, axes = plt.subplots(nb, 3, figsize=(11.0, 3.4 * nb), dpi=100, squeeze=False,
+                             subplot_kw={"projection": "polar"})
+    zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(zenith_deg, azimuth_deg)[0][-1])
+    for j in range(nb):
+        both = np.concatenate([values[:, :, j].ravel(), truth_values[:, :, j].ravel()])
+        ok = np.isfinite(both)
+        lo, hi = (np.nanpercentile(both[ok], [1, 99]) if ok.any() else (0.0, 1.0))
+        hi = max(hi, lo + 1e-9)
+        wl = f"{wavelengths_nm[j]:.0f} nm"
+        kw = dict(zmax=zmax, sun_zenith_deg=sun_zenith_deg, sun_azimuth_deg=sun_azimuth_deg)
+        _polar_panel(fig, axes[j][0], zenith_deg, azimuth_deg, values[:, :, j], vmin=lo, vmax=hi, cmap="inferno",
+                     title=f"BRF-GS, {wl}", label="BRF", **kw)
+        _polar_panel(fig, axes[j][1], truth_zenith_deg, truth_azimuth_deg, truth_values[:, :, j], vmin=lo, vmax=hi,
+                     cmap="inferno", title=f"truth (simulator), {wl}", label="BRF", **kw)
+        d = model_at_truth[:, :, j] - truth_values[:, :, j]
+        okd = np.isfinite(d)
+        m = float(np.nanmax(np.abs(d[okd]))) if okd.any() else 1.0
+        _polar_panel(fig, axes[j][2], truth_zenith_deg, truth_azimuth_deg, d, vmin=-max(m, 1e-9), vmax=max(m, 1e-9),
+                     cmap="RdBu_r", title=f"BRF-GS − truth, {wl}", label="ΔBRF", **kw)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

@@ -16,6 +16,13 @@ rendered from that direction, whose surface point (from the rendered depth) lies
 ROI specifications on the command line (:func:`parse_roi_spec`):
 
     polygon:X1,Y1;X2,Y2;X3,Y3[;...]      ground polygon, ENU metres
+    PATH.geojson | PATH.json | geojson:PATH
+                                          GeoJSON file (:func:`read_geojson_polygons`): a Polygon or
+                                          MultiPolygon geometry, a Feature holding one, or a
+                                          FeatureCollection / GeometryCollection of them (their union);
+                                          coordinates (x, y[, z ignored]) in the scene's local ENU
+                                          metres, NOT longitude/latitude; a ``crs`` member other than a
+                                          local/ENU one is refused
     box:VIEW:COL0,ROW0,COL1,ROW1          pixel box (inclusive-exclusive) in training view VIEW
     mask:VIEW:PATH                        boolean mask (.npy, or .png: nonzero = in) in view VIEW
     material:NAME                         material NAME of a simulated scene (truth/materials)
@@ -25,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +52,8 @@ __all__ = [
     "read_materials_json",
     "material_points",
     "parse_roi_spec",
+    "points_in_polygons",
+    "read_geojson_polygons",
 ]
 
 
@@ -59,6 +69,29 @@ def points_in_polygon(xy: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
         x_int = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
     hit = crosses & (x < x_int)
     return (hit.sum(1) % 2) == 1
+
+
+def points_in_polygons(xy: np.ndarray, polygons) -> np.ndarray:
+    """bool [N]: points ``xy`` [N, 2] inside the union of ``polygons``.
+
+    ``polygons``: list of polygons, each a list of rings [V, 2] — the exterior ring first,
+    then its holes (GeoJSON layout). A point is inside a polygon when it is inside the
+    exterior and in none of the holes (even-odd rule per ring).
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    out = np.zeros(len(xy), bool)
+    for rings in polygons:
+        inside = points_in_polygon(xy, rings[0])
+        for hole in rings[1:]:
+            inside &= ~points_in_polygon(xy, hole)
+        out |= inside
+    return out
+
+
+def ring_area(ring_xy: np.ndarray) -> float:
+    """Unsigned area (m²) of a ring [V, 2] (shoelace)."""
+    v = np.asarray(ring_xy, float)
+    return 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1)) - np.dot(v[:, 1], np.roll(v[:, 0], -1))))
 
 
 class ROI:
@@ -87,6 +120,11 @@ class ROI:
 class PolygonROI(ROI):
     """Ground polygon ``vertices_xy_m`` [V, 2] (ENU metres); ``z_range_m`` optional (lo, hi).
 
+    ``polygons`` (optional): several polygons with holes, each a list of rings [V, 2]
+    (exterior first, then holes; e.g. from a GeoJSON MultiPolygon); the ROI is their union
+    and ``vertices_xy_m`` is then the first exterior ring (kept for display). ``source``
+    records where the polygon came from (e.g. the GeoJSON file).
+
     The centre height is unknown until :meth:`set_surface_height` (the median height of
     the model's surface points inside the polygon); until then it is 0.
     """
@@ -96,22 +134,49 @@ class PolygonROI(ROI):
     z_range_m: tuple[float, float] | None = None
     surface_z_m: float = 0.0
     surface_dz_m: float = 0.0
+    polygons: list | None = None
+    source: dict = field(default_factory=dict)
     kind: str = field(default="polygon", init=False)
 
     def __post_init__(self):
-        v = np.asarray(self.vertices_xy_m, float)
-        if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.isfinite(v).all():
-            raise UserError("a polygon ROI needs at least 3 finite (x, y) vertices in metres", field="roi")
-        area = 0.5 * abs(np.dot(v[:, 0], np.roll(v[:, 1], -1)) - np.dot(v[:, 1], np.roll(v[:, 0], -1)))
+        polys = self.polygons if self.polygons is not None else [[self.vertices_xy_m]]
+        clean = []
+        for rings in polys:
+            rr = []
+            for ring in rings:
+                v = np.asarray(ring, float)
+                if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.isfinite(v).all():
+                    raise UserError("a polygon ROI needs at least 3 finite (x, y) vertices in metres", field="roi")
+                rr.append(v)
+            if not rr:
+                raise UserError("a polygon ROI needs at least one ring", field="roi")
+            clean.append(rr)
+        if not clean:
+            raise UserError("a polygon ROI needs at least one polygon", field="roi")
+        area = sum(max(ring_area(rr[0]) - sum(ring_area(h) for h in rr[1:]), 0.0) for rr in clean)
         if area <= 0:
             raise UserError("the polygon ROI has zero area", field="roi")
-        self.vertices_xy_m = v
+        self.polygons = clean
+        self.vertices_xy_m = clean[0][0]
+
+    @property
+    def all_vertices_xy_m(self) -> np.ndarray:
+        """Vertices [V, 2] of every exterior ring."""
+        return np.concatenate([rr[0] for rr in self.polygons])
+
+    @property
+    def area_m2(self) -> float:
+        """Area (m²) of the union (polygons assumed disjoint), holes removed."""
+        return float(sum(max(ring_area(rr[0]) - sum(ring_area(h) for h in rr[1:]), 0.0) for rr in self.polygons))
 
     def contains(self, points_m: np.ndarray) -> np.ndarray:
         p = np.asarray(points_m, float).reshape(-1, 3)
         ok = np.isfinite(p).all(1)
         inside = np.zeros(len(p), bool)
-        inside[ok] = points_in_polygon(p[ok, :2], self.vertices_xy_m)
+        if len(self.polygons) == 1 and len(self.polygons[0]) == 1:
+            inside[ok] = points_in_polygon(p[ok, :2], self.vertices_xy_m)
+        else:
+            inside[ok] = points_in_polygons(p[ok, :2], self.polygons)
         if self.z_range_m is not None:
             inside &= (p[:, 2] >= self.z_range_m[0]) & (p[:, 2] <= self.z_range_m[1])
         return inside
@@ -127,18 +192,24 @@ class PolygonROI(ROI):
 
     @property
     def centre_m(self) -> np.ndarray:
-        xy = self.vertices_xy_m.mean(0)
+        xy = self.all_vertices_xy_m.mean(0)
         return np.array([xy[0], xy[1], self.surface_z_m])
 
     @property
     def radius_m(self) -> float:
-        r = float(np.max(np.linalg.norm(self.vertices_xy_m - self.vertices_xy_m.mean(0), axis=1)))
+        v = self.all_vertices_xy_m
+        r = float(np.max(np.linalg.norm(v - v.mean(0), axis=1)))
         return math.hypot(r, 0.5 * self.surface_dz_m)
 
     def describe(self) -> dict:
-        return {"kind": self.kind, "name": self.name, "vertices_xy_m": self.vertices_xy_m.tolist(),
-                "z_range_m": list(self.z_range_m) if self.z_range_m else None,
-                "centre_m": self.centre_m.tolist(), "radius_m": self.radius_m}
+        d = {"kind": self.kind, "name": self.name, "vertices_xy_m": self.vertices_xy_m.tolist(),
+             "z_range_m": list(self.z_range_m) if self.z_range_m else None,
+             "centre_m": self.centre_m.tolist(), "radius_m": self.radius_m, "area_m2": self.area_m2}
+        if len(self.polygons) > 1 or len(self.polygons[0]) > 1:
+            d["polygons_xy_m"] = [[r.tolist() for r in rr] for rr in self.polygons]
+        if self.source:
+            d["source"] = self.source
+        return d
 
 
 @dataclass
@@ -341,6 +412,8 @@ class ROISpec:
     kind: str                       # "polygon" | "box" | "mask" | "material"
     name: str
     polygon_xy_m: np.ndarray | None = None
+    polygons: list | None = None    # polygon kind from a GeoJSON file: [[exterior, holes...], ...]
+    source: dict | None = None
     view: str | None = None
     box: tuple[int, int, int, int] | None = None
     mask_path: Path | None = None
@@ -357,11 +430,159 @@ def _floats(text: str, field_: str) -> list[float]:
     return vals
 
 
+# ----------------------------------------------------------------------------------------
+# GeoJSON polygons
+
+GEOJSON_SUFFIXES = (".geojson", ".json")
+_LOCAL_CRS_WORDS = ("enu", "local")
+
+
+def _is_local_crs(crs) -> bool:
+    """True for a GeoJSON ``crs`` member that names a local / ENU frame (or is null)."""
+    if crs is None:
+        return True
+    if not isinstance(crs, dict):
+        return False
+    props = crs.get("properties") if isinstance(crs.get("properties"), dict) else {}
+    name = str(props.get("name", "")).lower()
+    if crs.get("type") != "name" or not name:
+        return False
+    tokens = [t for t in re.split(r"[^a-z0-9]+", name) if t]
+    return any(w in tokens for w in _LOCAL_CRS_WORDS) or "local_cs" in name or "engineering" in tokens
+
+
+def _check_crs(obj: dict, path: Path, where: str) -> None:
+    if "crs" in obj and not _is_local_crs(obj["crs"]):
+        raise UserError(f"coordinate reference system {json.dumps(obj['crs'])} is not supported: the scene frame is "
+                        "local ENU metres (x east, y north, around the scene centre), so the polygon must be "
+                        "given in it; transform the coordinates into that frame and remove the 'crs' member "
+                        "(or name a local one, e.g. {\"type\": \"name\", \"properties\": {\"name\": \"local-ENU\"}})",
+                        file=path, field=f"{where}crs" if where else "crs")
+
+
+def _geojson_ring(ring, path: Path, where: str) -> np.ndarray:
+    if not isinstance(ring, list):
+        raise UserError("a linear ring must be a list of positions [x, y]", file=path, field=where)
+    pts = []
+    for k, pos in enumerate(ring):
+        if (not isinstance(pos, list) or len(pos) < 2
+                or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in pos)):
+            raise UserError(f"a position must be [x, y] or [x, y, z] numbers (ENU metres), got {json.dumps(pos)}",
+                            file=path, field=f"{where}[{k}]")
+        if not all(math.isfinite(float(c)) for c in pos[:2]):
+            raise UserError(f"non-finite coordinate {json.dumps(pos)}", file=path, field=f"{where}[{k}]")
+        pts.append((float(pos[0]), float(pos[1])))
+    v = np.array(pts, float).reshape(-1, 2)
+    if len(v) >= 2 and np.array_equal(v[0], v[-1]):
+        v = v[:-1]                                   # GeoJSON rings repeat the first position at the end
+    if len(v) < 3:
+        raise UserError(f"a linear ring needs at least 3 distinct positions (4 with the closing one), got {len(ring)}",
+                        file=path, field=where)
+    if ring_area(v) <= 0:
+        raise UserError("the ring has zero area", file=path, field=where)
+    return v
+
+
+def _geojson_polygon(coords, path: Path, where: str) -> list[np.ndarray]:
+    if not isinstance(coords, list) or not coords:
+        raise UserError("Polygon coordinates must be a non-empty list of linear rings", file=path, field=where)
+    return [_geojson_ring(r, path, f"{where}[{i}]") for i, r in enumerate(coords)]
+
+
+def _geojson_geometry(geom, path: Path, where: str) -> list[list[np.ndarray]]:
+    if not isinstance(geom, dict):
+        raise UserError("expected a GeoJSON geometry object", file=path, field=where.rstrip(".") or "geometry")
+    _check_crs(geom, path, where)
+    gtype = geom.get("type")
+    if gtype == "Polygon":
+        return [_geojson_polygon(geom.get("coordinates"), path, f"{where}coordinates")]
+    if gtype == "MultiPolygon":
+        coords = geom.get("coordinates")
+        if not isinstance(coords, list) or not coords:
+            raise UserError("MultiPolygon coordinates must be a non-empty list of polygons", file=path,
+                            field=f"{where}coordinates")
+        return [_geojson_polygon(c, path, f"{where}coordinates[{i}]") for i, c in enumerate(coords)]
+    if gtype == "GeometryCollection":
+        geoms = geom.get("geometries")
+        if not isinstance(geoms, list) or not geoms:
+            raise UserError("GeometryCollection needs a non-empty 'geometries' list", file=path,
+                            field=f"{where}geometries")
+        return [p for i, g in enumerate(geoms) for p in _geojson_geometry(g, path, f"{where}geometries[{i}].")]
+    raise UserError(f"geometry type {gtype!r} cannot be an ROI: use a Polygon or MultiPolygon (ENU metres)",
+                    file=path, field=f"{where}type")
+
+
+def read_geojson_polygons(path: str | Path) -> tuple[list[list[np.ndarray]], str | None]:
+    """Polygons of a GeoJSON file, as ``([[exterior, hole, ...], ...], name or None)``.
+
+    Accepted: a bare Polygon / MultiPolygon / GeometryCollection, a Feature with such a
+    geometry, or a FeatureCollection of them (the ROI is the union of all polygons).
+    Coordinates are (x, y) in the scene's **local ENU metres** (x east, y north; a third
+    coordinate is ignored) — not longitude/latitude: the scene frame is local, so a ``crs``
+    member must be null or name a local/ENU frame (e.g. ``"local-ENU"``); any other CRS
+    (EPSG codes, OGC:CRS84, ...) is refused. ``name`` is ``properties.name`` of the only
+    Feature, if any. Every problem raises UserError naming the file and the JSON field.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("ROI GeoJSON file not found", file=path, field="--roi")
+    try:
+        data = json.loads(path.read_text())
+    except UnicodeDecodeError:
+        raise UserError("not a text (UTF-8) GeoJSON file", file=path) from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"invalid JSON ({exc})", file=path) from None
+    if not isinstance(data, dict) or "type" not in data:
+        raise UserError("not a GeoJSON object (a JSON object with a 'type' member)", file=path, field="type")
+    _check_crs(data, path, "")
+    t = data["type"]
+    name = None
+    if t == "FeatureCollection":
+        feats = data.get("features")
+        if not isinstance(feats, list) or not feats:
+            raise UserError("FeatureCollection needs a non-empty 'features' list", file=path, field="features")
+        polys = []
+        for i, f in enumerate(feats):
+            if not isinstance(f, dict) or f.get("type") != "Feature":
+                raise UserError("expected a Feature object", file=path, field=f"features[{i}].type")
+            _check_crs(f, path, f"features[{i}].")
+            if f.get("geometry") is None:
+                raise UserError("the Feature has no geometry", file=path, field=f"features[{i}].geometry")
+            polys += _geojson_geometry(f["geometry"], path, f"features[{i}].geometry.")
+        if len(feats) == 1 and isinstance(feats[0].get("properties"), dict):
+            name = feats[0]["properties"].get("name")
+    elif t == "Feature":
+        if data.get("geometry") is None:
+            raise UserError("the Feature has no geometry", file=path, field="geometry")
+        polys = _geojson_geometry(data["geometry"], path, "geometry.")
+        if isinstance(data.get("properties"), dict):
+            name = data["properties"].get("name")
+    else:
+        polys = _geojson_geometry(data, path, "")
+    return polys, (str(name) if name not in (None, "") else None)
+
+
+def _looks_like_geojson_path(text: str) -> bool:
+    return text.lower().endswith(GEOJSON_SUFFIXES) or Path(text).is_file()
+
+
 def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
-    """Parse one ``--roi`` value (see the module docstring); UserError on malformed text."""
+    """Parse one ``--roi`` value (see the module docstring); UserError on malformed text.
+
+    A GeoJSON file (``PATH.geojson``, ``PATH.json`` or ``geojson:PATH``) is read here, so a
+    bad file fails before any model is loaded.
+    """
     text = str(text).strip()
     kind, _, rest = text.partition(":")
     kind = kind.strip().lower()
+    if kind == "geojson" or (kind not in ("polygon", "box", "mask", "material") and _looks_like_geojson_path(text)):
+        path = Path(rest.strip() if kind == "geojson" else text)
+        if kind == "geojson" and not rest.strip():
+            raise UserError("geojson ROI: expected 'geojson:PATH'", field="--roi")
+        polys, fname = read_geojson_polygons(path)
+        nm = name or fname or path.stem
+        return ROISpec("polygon", nm, polygon_xy_m=polys[0][0], polygons=polys,
+                       source={"kind": "geojson", "file": str(path), "n_polygons": len(polys)})
     if kind == "polygon":
         pts = [p for p in rest.split(";") if p.strip()]
         xy = [_floats(p, "--roi") for p in pts]
@@ -386,7 +607,8 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
         if not rest.strip():
             raise UserError("material ROI: expected 'material:NAME'", field="--roi")
         return ROISpec("material", name or rest.strip(), material=rest.strip())
-    raise UserError(f"unknown ROI kind {kind!r}; use polygon:, box:, mask: or material:", field="--roi")
+    raise UserError(f"unknown ROI kind {kind!r}; use polygon:, box:, mask:, material: or a GeoJSON file "
+                    "(PATH.geojson)", field="--roi")
 
 
 def load_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:

@@ -184,8 +184,18 @@ def _resolve_roi(spec, bm, scene, backend):
     from brfgs.analysis.renderer import render_view
 
     if spec.kind == "polygon":
-        r = R.PolygonROI(spec.polygon_xy_m, name=spec.name)
-        r.set_surface_height(bm.model.means.detach().double().numpy())
+        r = R.PolygonROI(spec.polygon_xy_m, name=spec.name, polygons=spec.polygons, source=spec.source or {})
+        means = bm.model.means.detach().double().numpy()
+        lo, hi = means[:, :2].min(0), means[:, :2].max(0)
+        v = r.all_vertices_xy_m
+        if (v[:, 0].max() < lo[0] or v[:, 0].min() > hi[0] or v[:, 1].max() < lo[1] or v[:, 1].min() > hi[1]):
+            src = (spec.source or {}).get("file")
+            raise UserError(f"the polygon (x {v[:, 0].min():.6g}..{v[:, 0].max():.6g}, y {v[:, 1].min():.6g}.."
+                            f"{v[:, 1].max():.6g}) lies outside the model (x {lo[0]:.1f}..{hi[0]:.1f}, "
+                            f"y {lo[1]:.1f}..{hi[1]:.1f} m); ROI coordinates are the scene's local ENU metres, "
+                            "not longitude/latitude or projected map coordinates",
+                            file=src, field="coordinates" if src else "--roi")
+        r.set_surface_height(means)
         return r
     if spec.kind in ("box", "mask"):
         fr = bm.frame(spec.view)
@@ -235,7 +245,10 @@ def _open_scene(bm, scene_path: Path | None, required: bool):
 
 def brf_cmd(
     run: Path = RunArg,
-    roi: str = typer.Option(..., "--roi", help="polygon:X1,Y1;X2,Y2;... (ENU m) | box:VIEW:C0,R0,C1,R1 | "
+    roi: str = typer.Option(..., "--roi", help="polygon:X1,Y1;X2,Y2;... (ENU m) | FILE.geojson (or geojson:FILE): "
+                            "a Polygon/MultiPolygon geometry, Feature or FeatureCollection (union) with "
+                            "coordinates in the scene's local ENU metres (x east, y north; not lon/lat; a 'crs' "
+                            "member other than a local/ENU one is refused) | box:VIEW:C0,R0,C1,R1 | "
                             "mask:VIEW:FILE(.npy/.png) | material:NAME (simulated scenes)."),
     roi_name: str = typer.Option(None, "--roi-name", help="Name used in file names and titles."),
     bands: str = typer.Option("480,680,760,860", "--bands", help="Wavelengths (nm) of the curves and maps."),
@@ -253,9 +266,22 @@ def brf_cmd(
     size: int = typer.Option(None, "--size", min=8, max=1024, help="Pixels of the square ROI camera (the ROI fills "
                              "~90 percent of it) (default: the training images' pixel footprint on the ground)."),
     truth_render: bool = typer.Option(True, "--truth-render/--no-truth-render",
-                                      help="On simulated scenes, render the truth again along the principal plane."),
+                                      help="On simulated scenes (truth/scene.json), render the truth again with the "
+                                      "simulator along the principal plane and on a coarse polar grid, and report "
+                                      "the model's BRF error per band (slow: about 0.3-1 s per direction)."),
     truth_step: float = typer.Option(10.0, "--truth-step", min=1.0, help="Principal-plane step (deg) of the truth renders."),
-    truth_size: int = typer.Option(128, "--truth-size", min=16, help="Pixels of the truth renders (acquisition FOV)."),
+    truth_size: int = typer.Option(128, "--truth-size", min=16, help="Pixels of the principal-plane truth renders "
+                                   "(acquisition FOV)."),
+    truth_polar_azimuths: int = typer.Option(12, "--truth-polar-azimuths", min=1,
+                                             help="Azimuth sectors of the truth polar grid (coarse: each direction is "
+                                             "a simulator render)."),
+    truth_polar_zeniths: int = typer.Option(6, "--truth-polar-zeniths", min=1,
+                                            help="Zenith rings of the truth polar grid."),
+    truth_polar_size: int = typer.Option(64, "--truth-polar-size", min=16,
+                                         help="Pixels of the polar truth renders (acquisition FOV)."),
+    truth_spp: int = typer.Option(16, "--truth-spp", min=1, help="Samples per pixel of all truth renders: a power "
+                                  "of 4 (1, 4, 16, 64, 256) for scenes simulated with the default 'ldsampler', a "
+                                  "power of two for older 'independent' scenes."),
     max_plane_offset: float = typer.Option(20.0, "--max-plane-offset",
                                            help="Observations within this azimuth (deg) of the principal plane are plotted."),
     out: Path = typer.Option(None, "--out", "-o", help="Output folder (default: RUN/analysis/brf_<roi name>)."),
@@ -265,7 +291,12 @@ def brf_cmd(
     overwrite: bool = OverwriteOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """BRF of a region: principal-plane curves, polar maps, spectra vs observations (and truth), CSVs."""
+    """BRF of a region: principal-plane curves, polar maps, spectra vs observations (and truth), CSVs.
+
+    On a simulated scene (truth/scene.json) the simulator renders the truth again for the principal
+    plane and a coarse polar grid (polar_truth.png/.csv); per-band RMSE and mean bias of the model
+    against it are in brf.json and truth_error.csv.
+    """
     import time
 
     import numpy as np
@@ -283,6 +314,9 @@ def brf_cmd(
         raise UserError("this model has no spectra (CIR variant); BRF analysis needs a spectral model", file=run)
     bi = bm.band_indices(wls)
     sc = _open_scene(bm, scene, required=(spec.kind == "material"))
+    do_truth = sc is not None and truth_render and B.has_simulator_truth(sc.root)
+    if do_truth:
+        B.check_truth_spp(sc.root, truth_spp, field="--truth-spp")
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in spec.name)
     out = out if out is not None else _run_dir(run) / "analysis" / f"brf_{safe}"
     _prepare_out(out, "brf.json", overwrite, bm.scene_root)
@@ -339,25 +373,26 @@ def brf_cmd(
                          + ([float(v) for v in o.truth[bi]] if o.truth is not None else [float("nan")] * len(bi))
                          for o in near])
         truth_s = truth_v = None
-        if sc is not None and truth_render and B.has_simulator_truth(sc.root):
+        truth_bands = [sc.band_index_nearest(w) for w in wl_sel] if do_truth else []
+        truth_errors = []                                   # rows of truth_error.csv
+        if do_truth:
             t = time.perf_counter()
             n_t = int(round(2 * max_zenith / truth_step)) + 1
             truth_s = np.linspace(-max_zenith, max_zenith, n_t)
             tz, ta = principal_plane_directions(truth_s, bm.sun_azimuth_deg)
-            tb = B.truth_brf(sc.root, region, tz, ta, [sc.band_index_nearest(w) for w in wl_sel],
-                             distance_m=pp.extra["distance_m"], size=truth_size, progress=progress)
+            tb = B.truth_brf(sc.root, region, tz, ta, truth_bands, distance_m=pp.extra["distance_m"],
+                             size=truth_size, spp=truth_spp, progress=progress)
             truth_v = tb.values
             timings["truth_render_s"] = time.perf_counter() - t
             model_at = np.stack([np.interp(truth_s, s, pp.values[:, j]) for j in range(len(bi))], 1)
-            ok = np.isfinite(truth_v).all(1)
-            err = model_at[ok] - truth_v[ok]
+            err = B.brf_error(model_at, truth_v, wl_sel)
             summary["principal_plane"]["vs_truth_render"] = {
-                "n_directions": int(ok.sum()), "step_deg": truth_step, "size_px": truth_size,
-                "rmse": {f"{w:.0f}": float(np.sqrt(np.mean(err[:, j] ** 2))) for j, w in enumerate(wl_sel)},
-                "mean_relative_error": {f"{w:.0f}": float(np.mean(np.abs(err[:, j]) / np.maximum(np.abs(truth_v[ok, j]), 1e-6)))
-                                        for j, w in enumerate(wl_sel)},
+                **err, "step_deg": truth_step, "size_px": truth_size, "spp": truth_spp,
+                "model": "principal-plane curve interpolated to the truth directions",
                 "truth_peak_signed_zenith_deg": {f"{w:.0f}": B.curve_peak(truth_s, truth_v[:, j])
                                                  for j, w in enumerate(wl_sel)}}
+            truth_errors += [["principal_plane", float(w), err["n_directions"], err["rmse"][f"{w:.0f}"],
+                              err["mean_bias"][f"{w:.0f}"], err["mean_relative_error"][f"{w:.0f}"]] for w in wl_sel]
             plots.write_csv(out / "principal_plane_truth.csv",
                             ["signed_view_zenith_deg"] + [f"truth_{w:.0f}nm" for w in wl_sel]
                             + [f"model_{w:.0f}nm" for w in wl_sel] + ["n_pixels"],
@@ -396,6 +431,56 @@ def brf_cmd(
                                            for j, w in enumerate(wl_sel)},
                                 "seconds": timings["polar_map_s"], "directions": int(flat.shape[0])}
             summary["files"].update({"polar_png": "polar.png", "polar_csv": "polar.csv"})
+            if do_truth:
+                from brfgs.analysis.views import hemisphere_grid
+
+                t = time.perf_counter()
+                tzc, tac = hemisphere_grid(truth_polar_azimuths, truth_polar_zeniths, max_zenith)
+                TZ, TA = np.meshgrid(tzc, tac, indexing="ij")
+                tpb = B.truth_brf(sc.root, region, TZ.ravel(), TA.ravel(), truth_bands,
+                                  distance_m=res.extra["distance_m"], size=truth_polar_size, spp=truth_spp,
+                                  progress=progress)
+                timings["truth_polar_render_s"] = time.perf_counter() - t
+                t = time.perf_counter()
+                mtb = B.roi_brf(bm, region, TZ.ravel(), TA.ravel(), bi, size=size, distance_m=distance,
+                                backend=backend, min_alpha=min_alpha, desc="model on the truth grid")
+                timings["model_on_truth_grid_s"] = time.perf_counter() - t
+                shape = (len(tzc), len(tac), len(bi))
+                tvals, mvals = tpb.values.reshape(shape), mtb.values.reshape(shape)
+                err = B.brf_error(mtb.values, tpb.values, wl_sel)
+                plots.write_csv(out / "polar_truth.csv",
+                                ["view_zenith_deg", "view_azimuth_deg", "relative_azimuth_deg"]
+                                + [f"truth_{w:.0f}nm" for w in wl_sel] + [f"model_{w:.0f}nm" for w in wl_sel]
+                                + ["n_pixels_truth", "n_pixels_model"],
+                                [[float(TZ.flat[k]), float(TA.flat[k]),
+                                  float(B.relative_azimuth_deg(TA.flat[k], bm.sun_azimuth_deg))]
+                                 + [float(v) for v in tpb.values[k]] + [float(v) for v in mtb.values[k]]
+                                 + [int(tpb.n_pixels[k]), int(mtb.n_pixels[k])] for k in range(TZ.size)])
+                plots.plot_polar_truth(out / "polar_truth.png", zc, ac, vals, tzc, tac, tvals, mvals, wl_sel,
+                                       bm.sun_zenith_deg, bm.sun_azimuth_deg, max_zenith_deg=max_zenith,
+                                       title=f"{spec.name}: BRF-GS vs simulator truth over the view hemisphere")
+                tflat = np.where(np.isfinite(tpb.values), tpb.values, -np.inf)
+                tk = np.argmax(tflat, axis=0)
+                summary["polar"]["vs_truth_render"] = {
+                    **err, "n_azimuth": truth_polar_azimuths, "n_zenith": truth_polar_zeniths,
+                    "size_px": truth_polar_size, "spp": truth_spp,
+                    "model": "the model rendered for the same directions as the truth",
+                    "truth_min_pixels": int(tpb.n_pixels.min()),
+                    "truth_argmax": {f"{w:.0f}": ({"view_zenith_deg": float(TZ.flat[tk[j]]),
+                                                   "view_azimuth_deg": float(TA.flat[tk[j]])}
+                                                  if np.isfinite(tflat[tk[j], j]) else None)
+                                     for j, w in enumerate(wl_sel)},
+                    "seconds": timings["truth_polar_render_s"]}
+                summary["files"].update({"polar_truth_png": "polar_truth.png", "polar_truth_csv": "polar_truth.csv"})
+                truth_errors += [["polar", float(w), err["n_directions"], err["rmse"][f"{w:.0f}"],
+                                  err["mean_bias"][f"{w:.0f}"], err["mean_relative_error"][f"{w:.0f}"]]
+                                 for w in wl_sel]
+        if truth_errors:
+            plots.write_csv(out / "truth_error.csv", ["comparison", "wavelength_nm", "n_directions", "rmse",
+                                                      "mean_bias_model_minus_truth", "mean_relative_error"],
+                            [[r[0], r[1], r[2]] + [float("nan") if v is None else v for v in r[3:]]
+                             for r in truth_errors])
+            summary["files"]["truth_error_csv"] = "truth_error.csv"
 
     # spectra over the test views (Fig. 7) and errors
     test = [o for o in obs if o.split == "test" and o.observed is not None]
@@ -552,19 +637,33 @@ def export_cmd(
     run: Path = RunArg,
     out: Path = typer.Argument(..., help="Output folder (gaussians.ply, model.safetensors, export.json).",
                                show_default=False),
+    view_dependence: str = typer.Option("fit", "--view-dependence",
+                                        help="'fit': the view-dependent CIR colour of each Gaussian (training sun) "
+                                        "fitted with degree-3 SH into f_dc/f_rest, so viewers show the BRF's "
+                                        "hotspot and glint; 'none': the nadir-view colour, f_rest all zero."),
+    sh_directions: int = typer.Option(48, "--sh-directions", min=16, max=1024,
+                                      help="View directions (zenith <= 80 deg) sampled per Gaussian for the SH fit."),
     overwrite: bool = OverwriteOpt,
 ) -> None:
-    """Export the Gaussians as a 3DGS PLY (CIR colours + BRF parameters) and the self-describing model file."""
+    """Export the Gaussians as a 3DGS PLY (full standard attribute set x y z nx ny nz f_dc_0..2 f_rest_0..44
+    opacity scale_0..2 rot_0..3 with CIR colours, + BRF parameters) and the self-describing model file."""
+    import time
     import hashlib
     import shutil
 
     from brfgs.analysis.export import write_ply
     from brfgs.analysis.renderer import load_model
 
+    if view_dependence not in ("fit", "none"):
+        raise UserError(f"expected 'fit' or 'none', got {view_dependence!r}", field="--view-dependence")
     bm = load_model(run)
     _prepare_out(out, "export.json", overwrite, bm.scene_root)
     src = Path(bm.source)
-    ply = write_ply(out / "gaussians.ply", bm)
+    colour_info: dict = {}
+    t0 = time.perf_counter()
+    ply = write_ply(out / "gaussians.ply", bm, view_dependence=view_dependence, n_directions=sh_directions,
+                    info=colour_info)
+    t_ply = time.perf_counter() - t0
     dst = out / "model.safetensors"
     if dst.resolve() != src.resolve():
         shutil.copyfile(src, dst.with_name(dst.name + ".tmp"))
@@ -573,8 +672,12 @@ def export_cmd(
     sha = hashlib.sha256(dst.read_bytes()).hexdigest()
     info = {"source": str(src), "ply": ply.name, "model": dst.name, "model_sha256": sha,
             "n_gaussians": bm.n_gaussians, "latent_dim": bm.model.latent_dim, "bands": len(bm.wavelengths_nm),
-            "ply_properties": "x y z nx ny nz f_dc_0..2 opacity scale_0..2 rot_0..3 + z_iso_*, z_vol_*, z_geo_*, "
-                              "z_spec_*, roughness",
+            "ply_properties": "x y z nx ny nz f_dc_0..2 f_rest_0..44 opacity scale_0..2 rot_0..3 (standard 3DGS) "
+                              "+ z_iso_*, z_vol_*, z_geo_*, z_spec_*, roughness (BRF-GS) or sh_<k>_<j> (SH baseline)",
+            "ply_colours": {"space": "CIR composite (850/650/550 nm as R/G/B, scaled like the training data)",
+                            "sun_zenith_deg": bm.sun_zenith_deg, "sun_azimuth_deg": bm.sun_azimuth_deg,
+                            **colour_info},
+            "timings_s": {"ply": t_ply},
             "model_format": "safetensors + JSON metadata (brfgs-gaussians/1); loading never executes code"}
     (out / "export.json").write_text(json.dumps(info, indent=1))
     typer.echo(f"wrote {ply} ({bm.n_gaussians} Gaussians) and {dst}")
