@@ -171,6 +171,9 @@ def test_cli_is_deterministic_and_resumes(tmp_path, monkeypatch):
     (["--sun-zenith", "95"], "zenith"),
     (["--sun-zenith", "-1"], "zenith"),
     (["--spp", "3"], "spp"),
+    (["--spp", "32"], "power of 4"),  # the default ldsampler needs a square power of two
+    (["--spp", "3", "--sampler", "independent"], "spp"),
+    (["--sampler", "halton"], "sampler"),
     (["--views", "10"], "views"),
 ])
 def test_cli_bad_options_exit_2(tmp_path, capsys, opts, field):
@@ -185,6 +188,19 @@ def test_library_bad_options_raise_user_error(tmp_path):
         simulate(tmp_path / "x", SimConfig.tiny("nowhere"))
     with pytest.raises(UserError):
         render_views(SimConfig.tiny(), [(95.0, 0.0)])
+    with pytest.raises(UserError, match="power of 4"):
+        render_views(SimConfig.tiny(), [(0.0, 0.0)], spp=8)
+
+
+def test_old_scene_config_reads_as_independent_sampler():
+    """Scenes written before the sampler option (no 'sampler' key) were rendered with independent samples."""
+    cfg = SimConfig.tiny(spp=8, sampler="independent")
+    d = cfg.to_json()
+    d.pop("sampler")
+    old = SimConfig.from_json(d)
+    assert old.sampler == "independent" and old.spp == 8
+    old.validate()
+    assert SimConfig.from_json(SimConfig.tiny().to_json()).sampler == "ldsampler"
 
 
 def test_never_overwrites_without_flag(tmp_path, capsys):

@@ -74,7 +74,7 @@ def test_rendered_image_is_aligned_with_camera_convention():
     """Mitsuba's image and the ray-cast material map (brfgs pixel_rays) agree pixel by pixel
     in an oblique view: the dark bitumen roof and the bright concrete yard fall where the
     cameras of conventions.md put them (a flip or offset would mix them)."""
-    cfg = SimConfig.tiny("testsite", bands=1, spp=8, wavelength_min_nm=650, wavelength_max_nm=651)
+    cfg = SimConfig.tiny("testsite", bands=1, spp=16, wavelength_min_nm=650, wavelength_max_nm=651)
     bld = _object("testsite", "building")[0]
     out = render_views(cfg, [(38.0, 240.0)], size=48, target_m=np.array(bld["centre_m"]))
     img = out["reflectance"][0, ..., 0]
@@ -92,7 +92,7 @@ def test_rendered_image_is_aligned_with_camera_convention():
 def test_pond_sun_glint_specular_vs_backscatter():
     """The rough water surface reflects the sun: near the specular direction the pond is several
     times brighter than in the backscatter direction (NIR, where the water body is black)."""
-    cfg = SimConfig.tiny("testsite", bands=2, spp=8, wavelength_min_nm=550, wavelength_max_nm=850)
+    cfg = SimConfig.tiny("testsite", bands=2, spp=16, wavelength_min_nm=550, wavelength_max_nm=850)
     pond = _object("testsite", "pond")[0]
     out = render_views(cfg, [(SUN_Z, SUN_A + 180.0), (SUN_Z, SUN_A)], size=32,
                        target_m=np.array(pond["centre_m"]))
@@ -108,7 +108,7 @@ def test_pond_sun_glint_specular_vs_backscatter():
 def test_canopy_hotspot(scene, kind, leaf):
     """Shadow hiding: crowns of leaf facets are brighter looking along the sun (hotspot, φ = 0)
     than at the same zenith on the forward-scatter side (φ = 180°)."""
-    cfg = SimConfig.tiny(scene, bands=2, spp=8, wavelength_min_nm=650, wavelength_max_nm=850)
+    cfg = SimConfig.tiny(scene, bands=2, spp=16, wavelength_min_nm=650, wavelength_max_nm=850)
     trees = _object(scene, kind)
     centre = np.mean([t.get("centre_m", t.get("base_m")) for t in trees], axis=0)
     centre[2] = 0.0
@@ -122,7 +122,7 @@ def test_canopy_hotspot(scene, kind, leaf):
 
 def test_vegetation_red_edge():
     """Vegetation: NIR (850 nm) reflectance is many times the red (650 nm); soil and concrete are not."""
-    cfg = SimConfig.tiny("testsite", spp=8, bands=2, wavelength_min_nm=650, wavelength_max_nm=850)
+    cfg = SimConfig.tiny("testsite", spp=16, bands=2, wavelength_min_nm=650, wavelength_max_nm=850)
     out = render_views(cfg, [(0.0, 0.0)], size=48)
     refl, mat = out["reflectance"][0], out["material"][0]
     for name in ("grass", "broadleaf", "shrub"):
@@ -194,7 +194,7 @@ def test_building_shadow_falls_away_from_the_sun():
     building on the anti-sun side is in shadow, the yard on the sun side is lit."""
     from brfgs.data.cameras import project_points
 
-    cfg = SimConfig.tiny("testsite", bands=1, spp=8, wavelength_min_nm=650, wavelength_max_nm=651)
+    cfg = SimConfig.tiny("testsite", bands=1, spp=16, wavelength_min_nm=650, wavelength_max_nm=651)
     bld = _object("testsite", "building")[0]
     centre = np.array(bld["centre_m"])
     out = render_views(cfg, [(0.0, 0.0)], size=64, target_m=centre)

@@ -16,7 +16,7 @@ def register(app: typer.Typer) -> None:
         size: int = typer.Option(64, "--size", help="Simulated image size (px)."),
         views: int = typer.Option(25, "--views", help="Simulated views (13, 25, 37 or 49)."),
         bands: int = typer.Option(164, "--bands", help="Simulated bands over 350-1000 nm."),
-        spp: int = typer.Option(16, "--spp", help="Simulation samples per pixel (power of two)."),
+        spp: int = typer.Option(16, "--spp", help="Simulation samples per pixel (a power of 4)."),
         stage1_steps: int = typer.Option(None, "--stage1-steps", help="Override the fast preset's stage-1 steps."),
         stage2_steps: int = typer.Option(None, "--stage2-steps", help="Override the fast preset's stage-2 steps."),
         threads: int = typer.Option(0, "--threads", help="CPU threads (0 = all)."),

@@ -15,7 +15,10 @@ def register(app: typer.Typer) -> None:
         size: int = typer.Option(128, "--size", help="Image width = height in pixels (>= 8)."),
         bands: int = typer.Option(164, "--bands", help="Number of bands over 350-1000 nm."),
         views: int = typer.Option(49, "--views", help="Number of views: 1, 13, 25, 37 or 49."),
-        spp: int = typer.Option(32, "--spp", help="Samples per pixel (power of two)."),
+        spp: int = typer.Option(64, "--spp", help="Samples per pixel: a power of 4 (1, 4, 16, 64, 256) for "
+                                "the default ldsampler, a power of two for independent."),
+        sampler: str = typer.Option("ldsampler", "--sampler",
+                                    help="Monte Carlo sampler: ldsampler (low discrepancy) or independent."),
         sun_zenith: float = typer.Option(38.0, "--sun-zenith", help="Sun zenith angle, degrees [0, 89]."),
         sun_azimuth: float = typer.Option(150.0, "--sun-azimuth",
                                           help="Sun azimuth, degrees clockwise from north."),
@@ -35,9 +38,10 @@ def register(app: typer.Typer) -> None:
 
         cfg = SimConfig(scene=scene, size=size, bands=bands, views=views, spp=spp, sun_zenith_deg=sun_zenith,
                         sun_azimuth_deg=sun_azimuth, seed=seed, distance_m=distance, fov_deg=fov,
-                        noise_scale=noise_scale, shot_coeff=shot_coeff, n_dark=n_dark, max_depth=max_depth)
+                        noise_scale=noise_scale, shot_coeff=shot_coeff, n_dark=n_dark, max_depth=max_depth,
+                        sampler=sampler)
         path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
         t = simulate.last_timing
         per_view = sorted(t["view_s"])[len(t["view_s"]) // 2] if t["view_s"] else float("nan")
-        typer.echo(f"wrote {path} ({cfg.views} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp}); "
+        typer.echo(f"wrote {path} ({cfg.views} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp} {cfg.sampler}); "
                    f"setup {t['setup_s']:.1f} s, median {per_view:.2f} s per view, total {t['total_s']:.1f} s")

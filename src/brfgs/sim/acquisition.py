@@ -13,7 +13,10 @@ cameras at ``distance_m`` from the scene centre looking at it; bands evenly spac
 Observation model (snapshot imager): ``obs = clean + N(0, σ_b²) + N(0, k² · max(clean, 0))``
 with the dark noise σ_b of :func:`brfgs.sim.spectra.dark_sigma` and shot coefficient k.
 Dark frames are ``N(0, σ_b²)``. ``clean`` is Mitsuba's estimate of π·L/E_down with
-``spp`` samples per pixel (so it carries a little Monte Carlo noise of its own).
+``spp`` samples per pixel (so it carries a little Monte Carlo noise of its own). The default
+low-discrepancy sampler at 64 spp keeps that noise well below the sensor's: on the 128²
+testsite its CIR PSNR against a 2048-spp render is 36.7 dB, where 32 independent samples
+(the sampler of earlier scenes) gave 29.8 dB — a ceiling on any PSNR measured against truth.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import json
 import math
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +38,7 @@ from brfgs.sim.geometry import SCENES, build_geometry
 from brfgs.sim.materials import MATERIAL_IDS, MATERIAL_NAMES
 
 VALID_VIEWS = (1, 13, 25, 37, 49)
+SAMPLERS = ("ldsampler", "independent")
 N_DARK_DEFAULT = 20
 # what simulate() writes (and what --overwrite may remove); other files in OUT are left alone
 OUTPUT_ENTRIES = ("transforms.json", "images", "calibration", "truth", "preview_cir_nadir.png",
@@ -47,7 +51,9 @@ class SimConfig:
 
     scene: "testsite" | "forest" | "flat"; size: image width = height (px); bands: number of
     bands over [wavelength_min_nm, wavelength_max_nm]; views: 1, 13, 25, 37 or 49; spp: samples
-    per pixel (power of two); sun angles in degrees (conventions: azimuth clockwise from north,
+    per pixel (a power of 4 for the default low-discrepancy sampler, a power of two for
+    "independent"); sampler: "ldsampler" (Mitsuba's low-discrepancy sampler, default) or
+    "independent" (plain random samples; scenes written before the sampler option); sun angles in degrees (conventions: azimuth clockwise from north,
     toward the sun); seed: all random choices (geometry, textures, Monte Carlo, noise);
     distance_m: camera distance from the scene centre; fov_deg: horizontal field of view;
     fwhm_nm: band width; noise_scale: multiplies σ_b (0 = noise-free observations);
@@ -59,7 +65,7 @@ class SimConfig:
     size: int = 128
     bands: int = 164
     views: int = 49
-    spp: int = 32
+    spp: int = 64
     sun_zenith_deg: float = 38.0
     sun_azimuth_deg: float = 150.0
     seed: int = 0
@@ -73,6 +79,7 @@ class SimConfig:
     n_dark: int = N_DARK_DEFAULT
     max_depth: int = 10
     texture_px: int = 0
+    sampler: str = "ldsampler"
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
@@ -83,8 +90,8 @@ class SimConfig:
 
     @classmethod
     def tiny(cls, scene: str = "testsite", **overrides) -> "SimConfig":
-        """Small preset for tests and quick looks: 32², 16 bands, 13 views, 8 spp, 4 dark frames."""
-        base = dict(scene=scene, size=32, bands=16, views=13, spp=8, n_dark=4)
+        """Small preset for tests and quick looks: 32², 16 bands, 13 views, 16 spp, 4 dark frames."""
+        base = dict(scene=scene, size=32, bands=16, views=13, spp=16, n_dark=4)
         base.update(overrides)
         return cls(**base)
 
@@ -105,7 +112,12 @@ class SimConfig:
         req(int(self.bands) >= 1, f"bands must be at least 1, got {self.bands}", "bands")
         req(int(self.views) in VALID_VIEWS, f"views must be one of {VALID_VIEWS}, got {self.views}", "views")
         spp = int(self.spp)
+        req(self.sampler in SAMPLERS, f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}",
+            "sampler")
         req(spp >= 1 and spp & (spp - 1) == 0, f"spp must be a power of two (1, 2, 4, ...), got {self.spp}", "spp")
+        # Mitsuba's ldsampler needs a square power of two (it would silently round up otherwise)
+        req(self.sampler != "ldsampler" or (spp.bit_length() - 1) % 2 == 0,
+            f"spp must be a power of 4 (1, 4, 16, 64, 256, ...) for the ldsampler sampler, got {self.spp}", "spp")
         req(0.0 <= float(self.sun_zenith_deg) <= 89.0,
             f"sun zenith must be within [0, 89] degrees, got {self.sun_zenith_deg}", "sun_zenith_deg")
         req(math.isfinite(float(self.sun_azimuth_deg)), "sun azimuth must be a finite number", "sun_azimuth_deg")
@@ -143,7 +155,9 @@ class SimConfig:
     @classmethod
     def from_json(cls, d: dict) -> "SimConfig":
         names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in d.items() if k in names})
+        kw = {k: v for k, v in d.items() if k in names}
+        kw.setdefault("sampler", "independent")  # scenes written before the sampler option
+        return cls(**kw)
 
 
 def view_name(index: int, zenith_deg: float, azimuth_deg: float) -> str:
@@ -167,7 +181,8 @@ def _make_renderer(cfg: SimConfig, bands=None, spp: int | None = None):
     if bands is not None:
         wl, fw = wl[list(bands)], fw[list(bands)]
     return geom, BandTripletRenderer(geom, wl, fw, float(cfg.sun_zenith_deg), float(cfg.sun_azimuth_deg),
-                                     spp=int(cfg.spp if spp is None else spp), max_depth=int(cfg.max_depth))
+                                     spp=int(cfg.spp if spp is None else spp), max_depth=int(cfg.max_depth),
+                                     sampler=cfg.sampler)
 
 
 def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: int | None = None,
@@ -185,6 +200,8 @@ def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: 
     reproduced exactly when size, spp and bands match.
     """
     cfg.validate()
+    if spp is not None:  # an override must suit the sampler too (ldsampler: a power of 4)
+        replace(cfg, spp=int(spp)).validate()
     views = [(float(z), float(a)) for z, a in view_angles_deg]
     for z, _ in views:
         if not 0.0 <= z <= 89.0:
@@ -396,7 +413,7 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
     _json_dump(out / "truth" / "scene.json", {
         "config": cfg.to_json(),
         "renderer": {"name": "mitsuba", "version": _mitsuba_version(), "variant": rend.mi.variant(),
-                     "integrator": "path", "spp": int(cfg.spp), "max_depth": int(cfg.max_depth),
+                     "integrator": "path", "spp": int(cfg.spp), "sampler": cfg.sampler, "max_depth": int(cfg.max_depth),
                      "reconstruction_filter": "box", "bands_per_pass": 3},
         "illumination": {
             "definition": "reflectance = pi * L / E_down; E_down (horizontal downwelling irradiance) = 1 in "

@@ -142,18 +142,21 @@ class BandTripletRenderer:
         geometry: the scene's meshes, textures and objects.
         wavelengths_nm, fwhm_nm: [B] sensor bands.
         sun_zenith_deg, sun_azimuth_deg: sun position (conventions: azimuth clockwise from north).
-        spp: samples per pixel (power of two for byte-identical renders).
+        spp: samples per pixel (power of two for byte-identical renders; a power of 4 for ldsampler).
+        sampler: Mitsuba sampler, "ldsampler" (low discrepancy) or "independent".
         max_depth: longest path (Mitsuba ``path`` integrator; Russian roulette from depth 5).
     """
 
     def __init__(self, geometry: SceneGeometry, wavelengths_nm, fwhm_nm, sun_zenith_deg: float,
-                 sun_azimuth_deg: float, spp: int = 32, max_depth: int = 10, variant: str = DEFAULT_VARIANT):
+                 sun_azimuth_deg: float, spp: int = 64, max_depth: int = 10, variant: str = DEFAULT_VARIANT,
+                 sampler: str = "ldsampler"):
         mi = setup_mitsuba(variant)
         self.mi = mi
         self.geometry = geometry
         self.wavelengths_nm = np.asarray(wavelengths_nm, float)
         self.fwhm_nm = np.asarray(fwhm_nm, float)
         self.spp = int(spp)
+        self.sampler = str(sampler)
         B = len(self.wavelengths_nm)
         self.n_bands = B
         # illumination per band (downwelling irradiance on a horizontal plane = 1)
@@ -282,7 +285,7 @@ class BandTripletRenderer:
             "to_world": mi.ScalarTransform4f(sensor_to_world(c2w_gl).tolist()),
             "film": {"type": "hdrfilm", "width": int(intr.w), "height": int(intr.h), "pixel_format": "rgb",
                      "rfilter": {"type": "box"}, "sample_border": False},
-            "sampler": {"type": "independent", "sample_count": self.spp}})
+            "sampler": {"type": self.sampler, "sample_count": self.spp}})
 
     def render_triplet(self, sensor, seed: int) -> np.ndarray:
         """Apparent reflectance [H, W, 3] (π·L) of the three loaded bands."""
