@@ -101,3 +101,17 @@ def test_keypoint_positions_are_unbiased():
         kp = E.detect_keypoints((img * 255).astype(np.uint8), sift=E.make_sift(contrast_threshold=0.001))
         best = kp["xy"][np.argmax(kp["response"])]
         assert np.abs(best - [cx, cy]).max() < 0.06, (cx, cy, best)
+
+
+def test_top_k_separated():
+    from brfgs.bands.efc import top_k_separated
+
+    wl = np.arange(400.0, 500.0, 4.0)  # 25 bands, 4 nm apart
+    score = -np.abs(wl - 450.0)  # peak at 450 nm: the plain top-3 are neighbours
+    assert top_k_separated(score, wl, 3).tolist() == E.top_k_bands(score, 3).tolist()
+    got = top_k_separated(score, wl, 3, min_separation_nm=20.0)
+    assert len(got) == 3 and got[0] == int(np.argmax(score))
+    assert all(abs(wl[a] - wl[b]) >= 20.0 for a in got for b in got if a != b)
+    # order of decreasing score among the allowed bands; fewer only when the range cannot hold k
+    assert score[got[1]] >= score[got[2]]
+    assert len(top_k_separated(score, wl, 10, min_separation_nm=40.0)) == 3

@@ -90,3 +90,12 @@ def test_cli_select_bands(scene, tmp_path):
 def test_detect_downscale(scene):
     st = compute_band_stats(scene, views=[0, 1], detect_max_px=24)
     assert st.detect_downscale == 2 and st.efc.shape == (2, 24)
+
+
+def test_efc_min_separation(scene, stats):
+    plain = select_bands(scene, "efc", top=3, stats=stats)
+    sep = select_bands(scene, "efc", top=3, stats=stats, min_separation_nm=60.0)
+    wl = scene.wavelengths_nm
+    assert sep.selected[0] == plain.selected[0] and len(sep.selected) == 3
+    assert all(abs(wl[a] - wl[b]) >= 60.0 for a in sep.selected for b in sep.selected if a != b)
+    assert sep.to_json()["min_separation_nm"] == 60.0 and "min_separation_nm" not in plain.to_json()

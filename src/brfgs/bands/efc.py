@@ -160,6 +160,26 @@ def top_k_bands(efc: np.ndarray, k: int = 3) -> np.ndarray:
     return order[: int(k)]
 
 
+def top_k_separated(score: np.ndarray, wavelengths_nm: np.ndarray, k: int = 3,
+                    min_separation_nm: float = 0.0) -> np.ndarray:
+    """Eq. 8 with a minimum spectral distance (beyond the paper, opt-in): bands in order of decreasing
+    ``score``, skipping any band closer than ``min_separation_nm`` to one already chosen. Adjacent bands of
+    a hyperspectral sensor are nearly the same image, so the paper's top-3 often are three neighbours;
+    a separation gives SfM differently textured images to pool. 0 is eq. 8 exactly. Fewer than ``k``
+    bands come back only when the range cannot hold ``k`` separated bands."""
+    order = top_k_bands(score, len(score))
+    if not min_separation_nm or min_separation_nm <= 0:
+        return order[: int(k)]
+    wl = np.asarray(wavelengths_nm, np.float64)
+    chosen: list[int] = []
+    for i in order:
+        if all(abs(wl[i] - wl[j]) >= min_separation_nm for j in chosen):
+            chosen.append(int(i))
+            if len(chosen) == k:
+                break
+    return np.asarray(chosen, np.int64)
+
+
 def efc_of_stack(cube: np.ndarray, sigma_dark: np.ndarray, valid: np.ndarray | None = None, sift=None):
     """EFC of every band of one view: eqs 3–7 with the maximum of eq. 6 taken over this view.
 

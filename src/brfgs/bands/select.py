@@ -197,8 +197,11 @@ def strategy_needs_stats(strategy: str) -> bool:
 
 def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandStats | None = None,
                  detect_max_px: int | None = DEFAULT_DETECT_MAX_PX, progress: bool = False,
-                 with_stats: bool = False) -> BandSelection:
+                 with_stats: bool = False, min_separation_nm: float = 0.0) -> BandSelection:
     """Choose the geometry bands of ``scene`` with ``strategy`` (see the module table).
+
+    ``min_separation_nm`` (EFC strategies; beyond the paper, default 0 = eq. 8): chosen bands are at
+    least this far apart in wavelength (:func:`brfgs.bands.efc.top_k_separated`).
 
     ``stats`` reuses precomputed :func:`compute_band_stats`; it is computed here when the
     strategy needs it or ``with_stats`` is set. ``top`` is k for ``efc``.
@@ -217,7 +220,7 @@ def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandSta
     k = {"efc": top, "efc-top1": 1, "efc-top3": 3}.get(strategy)
     if k is not None:
         k = min(k, n_b)
-        selected = [int(i) for i in E.top_k_bands(stats.efc_mean, k)]
+        selected = [int(i) for i in E.top_k_separated(stats.efc_mean, wl, k, min_separation_nm)]
     elif strategy == "all":
         selected = list(range(n_b))
     elif strategy in FIXED_WAVELENGTHS_NM:
@@ -228,7 +231,8 @@ def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandSta
         selected = [int(E.top_k_bands(stats.features_mean, 1)[0])]
     else:  # pragma: no cover - guarded above
         raise AssertionError(strategy)
-    return BandSelection(strategy, selected, wl, stats, top=k if k is not None else len(selected))
+    notes = {"min_separation_nm": float(min_separation_nm)} if k is not None and min_separation_nm else {}
+    return BandSelection(strategy, selected, wl, stats, top=k if k is not None else len(selected), notes=notes)
 
 
 def plot_band_stats(selection: BandSelection, path) -> None:

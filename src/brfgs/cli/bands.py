@@ -27,6 +27,9 @@ def select_bands_cmd(
     downscale: int = opt.DownscaleOpt,
     value_range: str = opt.ValueRangeOpt,
     detect_max_px: int = DetectMaxOpt,
+    min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
+                                         help="EFC strategies: chosen bands at least this far apart in wavelength "
+                                              "(beyond the paper; 0 = paper eq. 8, adjacent bands allowed)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Rank the bands by equivalent feature count (EFC) and keep the top k; write bands.json and a plot.
@@ -40,7 +43,8 @@ def select_bands_cmd(
     sc = opt.load_scene(scene, downscale, value_range)
     out = out if out is not None else Path.cwd() / f"bands_{sc.name}"
     opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="bands.json")
-    sel = select_bands(sc, strategy, top=top, detect_max_px=detect_max_px, progress=not quiet, with_stats=True)
+    sel = select_bands(sc, strategy, top=top, detect_max_px=detect_max_px, progress=not quiet, with_stats=True,
+                       min_separation_nm=min_separation)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bands.json").write_text(json.dumps(sel.to_json(), indent=1))
     plot_band_stats(sel, out / "bands.png")

@@ -24,6 +24,9 @@ def init_cmd(
         help="Band strategy: efc, efc-top1, efc-top3, all, rgb, cir, central, max-snr, max-features, or "
              "all-strategies (Table 2 geometry columns for the eight strategies, then init with efc-top3)."),
     top: int = typer.Option(3, "--top", "-k", min=1, help="k of the 'efc' strategy."),
+    min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
+                                         help="EFC strategies: chosen bands at least this far apart in wavelength "
+                                              "(beyond the paper; 0 = paper eq. 8)."),
     bands: str = typer.Option(None, "--bands",
                               help="Explicit band indices 'i,j,k' or a bands.json from select-bands "
                                    "(overrides --strategy)."),
@@ -35,6 +38,12 @@ def init_cmd(
     detect_upsample: int = typer.Option(0, "--detect-upsample", min=0,
                                         help="Detect features on a xN cubic-upsampled copy (0: 2 for SfM on images up "
                                              "to 256 px, else 1)."),
+    rectify: bool = typer.Option(True, "--rectify/--no-rectify",
+                                 help="SfM: detect features on nadir-rectified copies of oblique views (uses only the "
+                                      "cameras' orientation from transforms.json; beyond the paper)."),
+    robust_refinement: bool = typer.Option(True, "--robust-refinement/--no-robust-refinement",
+                                           help="SfM: retriangulate and finish with a global bundle adjustment "
+                                                "with a Cauchy loss (beyond the paper)."),
     threads: int = typer.Option(1, "--threads", min=1, help="COLMAP mapping threads (1 gives deterministic mapping)."),
     seed: int = typer.Option(0, "--seed", help="Random seed (RANSAC, mapping)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a finished initialisation in OUT."),
@@ -55,7 +64,7 @@ def init_cmd(
     opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="init_report.json")
     cfg = InitConfig(max_features=max_features, min_inliers=min_inliers, num_threads=threads, seed=seed,
                      keep_database=keep_database, min_track_length=min_track, max_point_error_px=max_point_error,
-                     detect_upsample=detect_upsample)
+                     detect_upsample=detect_upsample, rectify=rectify, robust_refinement=robust_refinement)
     rows = None
     selection = None
     if bands is not None:
@@ -69,9 +78,9 @@ def init_cmd(
             if not quiet:
                 typer.echo("Table 2 geometry columns, eight strategies:")
             rows = strategy_ablation(sc, top=top, stats=stats, config=cfg, progress=not quiet)
-            selection = select_bands(sc, "efc-top3", stats=stats)
+            selection = select_bands(sc, "efc-top3", stats=stats, min_separation_nm=min_separation)
         else:
-            selection = select_bands(sc, strategy, top=top, progress=not quiet)
+            selection = select_bands(sc, strategy, top=top, progress=not quiet, min_separation_nm=min_separation)
         idx = selection.selected
     res = initialize(sc, idx, poses=poses, out_dir=None, config=cfg, selection=selection, progress=not quiet)
     if rows is not None:
@@ -92,6 +101,8 @@ def init_cmd(
                f"{t['camera_centre_error_rel']['max']:.3%} of the camera distance")
         if t.get("point_to_surface_rel"):
             msg += f"; point-to-surface median {t['point_to_surface_rel']['median']:.3%}"
+        if t.get("views_above_1pct"):
+            msg += f"; views above 1%: {', '.join(t['views_above_1pct'])}"
         typer.echo(msg)
     if rows is not None:
         typer.echo("\n" + strategies_table(rows))

@@ -175,6 +175,40 @@ def incremental_mapping(db_path: Path, work_dir: Path, seed: int = 0, num_thread
     return max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
 
 
+def refine_reconstruction(rec, db_path: Path, seed: int = 0, num_threads: int = 1, min_inliers: int = 15,
+                          max_error_px: float = 2.0, loss_scale_px: float = 1.0, max_refinements: int = 5):
+    """Final refinement after incremental mapping (beyond the paper): retriangulate the pairs the scene graph
+    says should share points, complete and merge tracks, then iterative global bundle adjustment with a
+    Cauchy loss (scale ``loss_scale_px``) and fixed intrinsics, filtering observations above ``max_error_px``
+    between rounds. COLMAP's own global BA uses a squared loss, so a few wrong or view-dependent matches
+    (tree-crown edges, shadows) pull the weakly constrained near-nadir cameras sideways. Refines ``rec``
+    in place and returns it."""
+    pycolmap.set_random_seed(seed)
+    opt = _mapper_options(seed, num_threads, min_inliers, max_error_px)
+    opt.ba_global_max_num_iterations = 200
+    cache_opt = pycolmap.DatabaseCacheOptions()
+    cache_opt.min_num_matches = min_inliers
+    with pycolmap.Database.open(str(db_path)) as db:
+        cache = pycolmap.DatabaseCache.create(db, cache_opt)
+    mapper = pycolmap.IncrementalMapper(cache)
+    mapper.begin_reconstruction(rec)
+    mapper_opt = opt.get_mapper()
+    tri_opt = opt.get_triangulation()
+    ba_opt = opt.get_global_bundle_adjustment()
+    ba_opt.refine_focal_length = False
+    ba_opt.refine_principal_point = False
+    ba_opt.refine_extra_params = False
+    ba_opt.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    ba_opt.ceres.loss_function_scale = float(loss_scale_px)
+    mapper.retriangulate(tri_opt)
+    mapper.complete_and_merge_tracks(tri_opt)
+    mapper.iterative_global_refinement(max_refinements, 1e-5, mapper_opt, ba_opt, tri_opt,
+                                       normalize_reconstruction=False)
+    mapper.filter_points(mapper_opt)
+    mapper.end_reconstruction(False)
+    return rec
+
+
 def _rigid_from_w2c(w2c_cv: np.ndarray) -> "pycolmap.Rigid3d":
     return pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(w2c_cv[:3, :3], float)), np.asarray(w2c_cv[:3, 3], float))
 

@@ -100,17 +100,23 @@ def root_sift(desc: np.ndarray) -> np.ndarray:
 
 def extract_view_features(cube: np.ndarray, valid: np.ndarray | None = None,
                           max_features: int = DEFAULT_MAX_FEATURES, dedupe_px: float = DEDUPE_PX,
-                          sift=None, use_root_sift: bool = True) -> ViewFeatures:
+                          sift=None, use_root_sift: bool = True,
+                          rect: "Rectification | None" = None) -> ViewFeatures:
     """SIFT features of the band images ``cube`` [H, W, k] (k selected bands), pooled over bands.
 
     Each band is stretched to 8 bits (:func:`brfgs.bands.efc.stretch_to_uint8`); keypoints
     of all bands are pooled, duplicates removed, and the strongest ``max_features`` kept.
+    ``rect``: detect on the nadir-rectified canvas (:func:`nadir_rectification`) and map the keypoints
+    back to the image; positions and scales are always in the pixels of ``cube``.
     """
     cube = np.asarray(cube)
     if cube.ndim == 2:
         cube = cube[:, :, None]
     if valid is None:
         valid = np.isfinite(cube).all(-1)
+    if rect is not None:
+        cube, valid_c = rectify_cube(np.where(valid[:, :, None], cube, np.nan), rect)
+        valid = valid_c
     sift = make_sift(contrast_threshold=SFM_CONTRAST_THRESHOLD) if sift is None else sift
     xy, resp, size, ang, desc, band = [], [], [], [], [], []
     for j in range(cube.shape[-1]):
@@ -127,11 +133,104 @@ def extract_view_features(cube: np.ndarray, valid: np.ndarray | None = None,
     keep = dedupe_keypoints(xy, resp, dedupe_px if cube.shape[-1] > 1 else 0.0, desc_all)
     n_detected = len(keep)
     keep = keep[:max_features] if max_features else keep
+    xy, size = xy[keep].astype(np.float64), np.concatenate(size)[keep] / 2.0
+    if rect is not None:  # canvas → image pixels; SIFT scale by the local magnification
+        xy = rect.to_image(xy)
+        size = size / rect.jacobian_scale(xy)
     return ViewFeatures(
-        xy=(xy[keep] + 0.5).astype(np.float32),  # first pixel centre at 0 -> COLMAP's 0.5
-        scale=(np.concatenate(size)[keep] / 2.0).astype(np.float32),
+        xy=(xy + 0.5).astype(np.float32),  # first pixel centre at 0 -> COLMAP's 0.5
+        scale=size.astype(np.float32),
         angle_rad=np.deg2rad(np.concatenate(ang)[keep]).astype(np.float32),
         desc=root_sift(desc_all[keep]) if use_root_sift else desc_all[keep],
         n_detected=int(n_detected),
         band_of=np.concatenate(band)[keep],
     )
+
+
+# ----------------------------------------------------------------------------- nadir rectification
+# Beyond the paper: oblique views (the 58° ring of the 49-view protocol) see the ground foreshortened
+# by cos(θ) along their tilt direction, which SIFT does not undo (it is similarity-invariant only); their
+# matches with every other ring are few. Detecting on a copy of the image rotated virtually to nadir
+# (a homography that needs only the camera's orientation — gimbal angles or the nominal view angles —
+# not its position) makes the ground texture of all views look alike; keypoints are mapped back to the
+# original pixels, so SfM still estimates every pose from the images alone.
+MAX_RECTIFIED_SIDE = 2.5  # the rectified canvas is at most this many times the image side (the far field of an
+#                           oblique view is stretched without bound; it is clipped there)
+
+
+@dataclass
+class Rectification:
+    """Homography ``H`` [3, 3] from image pixels to canvas pixels (both OpenCV convention: pixel centres at
+    integer coordinates) and the canvas size (w, h)."""
+
+    H: np.ndarray
+    size: tuple[int, int]
+
+    def to_image(self, xy: np.ndarray) -> np.ndarray:
+        """Canvas pixel coordinates [N, 2] → image pixel coordinates [N, 2]."""
+        p = np.concatenate([np.asarray(xy, np.float64), np.ones((len(xy), 1))], 1) @ np.linalg.inv(self.H).T
+        return p[:, :2] / p[:, 2:3]
+
+    def jacobian_scale(self, xy_img: np.ndarray) -> np.ndarray:
+        """sqrt |det J| of the homography at image points [N, 2]: canvas length per image length."""
+        p = np.concatenate([np.asarray(xy_img, np.float64), np.ones((len(xy_img), 1))], 1) @ self.H.T
+        w = p[:, 2]
+        return np.sqrt(np.abs(np.linalg.det(self.H)) / np.abs(w) ** 3)
+
+
+def nadir_rectification(c2w_gl: np.ndarray, fx: float, fy: float, cx: float, cy: float, w: int, h: int,
+                        min_tilt_deg: float = 10.0, max_side: float = MAX_RECTIFIED_SIDE) -> Rectification | None:
+    """Homography that turns a camera with orientation ``c2w_gl`` (OpenGL c2w, only its rotation is used)
+    into a virtual nadir camera at the same place: a plane z = const then appears without perspective
+    foreshortening. Intrinsics in the OpenCV pixel convention (centre of the first pixel at 0) of the image
+    the homography is applied to. Scaled so that nothing is down-sampled at the image centre (the smaller
+    singular value of the Jacobian there is 1); the canvas is the warped image clipped to ``max_side`` × the
+    image size around the warped image centre. None when the optical axis is within ``min_tilt_deg`` of nadir.
+    """
+    R = np.asarray(c2w_gl, float)[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # OpenCV camera axes → world
+    z_cam = R[:, 2]
+    tilt = np.degrees(np.arccos(np.clip(-z_cam[2], -1.0, 1.0)))
+    if tilt < min_tilt_deg or tilt > 80.0:
+        return None
+    x_h = R[:, 0] - R[:, 0][2] * np.array([0.0, 0.0, 1.0])  # camera x projected on the horizontal
+    if np.linalg.norm(x_h) < 1e-6:
+        x_h = np.cross(R[:, 1], [0.0, 0.0, 1.0])
+    x_v = x_h / np.linalg.norm(x_h)
+    z_v = np.array([0.0, 0.0, -1.0])
+    Rv = np.stack([x_v, np.cross(z_v, x_v), z_v], 1)  # virtual camera axes (OpenCV) in world
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    G = Rv.T @ R @ np.linalg.inv(K)  # image pixel → virtual normalised ray
+    c = np.array([cx, cy, 1.0])
+
+    def proj(M, pts):
+        q = np.concatenate([pts, np.ones((len(pts), 1))], 1) @ M.T
+        return q[:, :2] / q[:, 2:3]
+
+    eps = 0.5
+    pts = np.array([[cx, cy], [cx + eps, cy], [cx, cy + eps]])
+    q = proj(G, pts)
+    J = np.stack([(q[1] - q[0]) / eps, (q[2] - q[0]) / eps], 1)
+    s = 1.0 / np.linalg.svd(J, compute_uv=False).min()  # canvas pixels per normalised unit
+    A = np.diag([s, s, 1.0]) @ G
+    corners = proj(A, np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]))
+    mid = proj(A, c[None, :2])[0]
+    lo = np.maximum(corners.min(0), mid - 0.5 * max_side * np.array([w, h]))
+    hi = np.minimum(corners.max(0), mid + 0.5 * max_side * np.array([w, h]))
+    T = np.array([[1, 0, -lo[0]], [0, 1, -lo[1]], [0, 0, 1.0]])
+    size = (int(np.ceil(hi[0] - lo[0])) + 1, int(np.ceil(hi[1] - lo[1])) + 1)
+    return Rectification(T @ A, size)
+
+
+def rectify_cube(cube: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
+    """Warp ``cube`` [H, W, k] onto the rectified canvas (bicubic); returns (canvas [h', w', k], valid [h', w'])."""
+    import cv2
+
+    cube = np.asarray(cube, np.float32)
+    ok = np.isfinite(cube).all(-1)
+    filled = np.where(ok[:, :, None], cube, 0.0).astype(np.float32)
+    out = np.stack([cv2.warpPerspective(filled[:, :, j], rect.H, rect.size, flags=cv2.INTER_CUBIC,
+                                        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+                    for j in range(cube.shape[-1])], -1)
+    valid = cv2.warpPerspective(ok.astype(np.uint8), rect.H, rect.size, flags=cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    return out, valid

@@ -87,19 +87,22 @@ def truth_checks(scene, c2w_est: list, points: np.ndarray) -> dict | None:
     truth = _truth_c2w(scene)
     centre_true = np.array([c[:3, 3] for c in truth])
     dist = np.linalg.norm(centre_true, axis=1)  # camera distance to the scene centre (ENU origin)
-    errs, rel = [], []
+    errs, rel, per_view = [], [], {}
     for i, c in enumerate(c2w_est):
         if c is None:
             continue
         e = float(np.linalg.norm(np.asarray(c)[:3, 3] - centre_true[i]))
         errs.append(e)
         rel.append(e / dist[i])
+        per_view[scene.frames[i].name] = e / dist[i]
     out = {
         "camera_distance_m_median": float(np.median(dist)),
         "camera_centre_error_m": {"median": float(np.median(errs)) if errs else None,
                                   "max": float(np.max(errs)) if errs else None},
         "camera_centre_error_rel": {"median": float(np.median(rel)) if rel else None,
                                     "max": float(np.max(rel)) if rel else None},
+        "camera_centre_error_rel_per_view": per_view,
+        "views_above_1pct": [n for n, v in per_view.items() if v > 0.01],
         "definitions": {
             "camera_centre_error_rel": "|c_est - c_true| / |c_true - scene centre| per registered view",
             "point_to_surface": "distance of each sparse point to the plane through its 8 nearest samples of "
