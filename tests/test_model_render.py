@@ -37,3 +37,39 @@ def test_centred_equals_eq12_after_uncentre():
     wo[:, 2] = 1
     n = gaussian_normals(m.quats, m.scales, wo)
     assert torch.allclose(centred_hybrid_latent(m, cfg, n, sun, wo), m["z_iso"], atol=1e-5)
+
+
+def test_learned_shading_normals_replace_the_smallest_axis():
+    """With a 'normals' tensor the head uses it (normalised, facing ω_o), in the centred and the eq. 12 form."""
+    from brfgs.brdf.geometry import shading_normals
+
+    torch.manual_seed(1)
+    rng = np.random.default_rng(1)
+    m = init_from_points(rng.uniform(-5, 5, (30, 3)), rng.uniform(0, 1, (30, 3)), latent_dim=4)
+    with torch.no_grad():
+        m.params["quats"].copy_(torch.randn(30, 4))
+        m.params["log_scales"].copy_(torch.randn(30, 3))
+    wo = view_dirs(m.means, torch.tensor([20.0, -10.0, 90.0]))
+    # no learned normals: the smallest axis
+    assert torch.equal(shading_normals(m.quats, m.scales, wo, None), gaussian_normals(m.quats, m.scales, wo))
+    raw = torch.randn(30, 3) * 3.0
+    n = shading_normals(m.quats, m.scales, wo, raw)
+    assert torch.allclose(n.norm(dim=-1), torch.ones(30), atol=1e-6)
+    assert bool(((n * wo).sum(-1) >= 0).all())
+    assert torch.allclose(n.abs(), (raw / raw.norm(dim=-1, keepdim=True)).abs(), atol=1e-6)
+    cfg = HeadConfig(kind="hybrid")
+    params = init_head_params(cfg, 30, 4, z_init=torch.randn(30, 4))
+    for k in ("z_vol", "z_geo", "z_spec"):
+        params[k] = torch.randn(30, 4)
+    params["normals"] = raw
+    m.set_head(params, "brf")
+    m.centred = True
+    sun = torch.tensor([0.3, -0.5, 0.81])
+    sun = sun / sun.norm()
+    plain = uncentre(m, cfg, sun)
+    a = centred_hybrid_latent(m, cfg, n, sun, wo)
+    b = evaluate_head(cfg, {k: plain[k] for k in ("z_iso", "z_vol", "z_geo", "z_spec", "rho_raw")}, n, sun, wo)
+    assert torch.allclose(a, b, atol=1e-4), (a - b).abs().max()
+    # and it differs from the geometric-normal head (the normals matter)
+    c = centred_hybrid_latent(m, cfg, gaussian_normals(m.quats, m.scales, wo), sun, wo)
+    assert (a - c).abs().max() > 1e-3

@@ -49,6 +49,15 @@ def test_losses_decrease_in_both_stages_and_model_loads(scene, tmp_path):
     tensors, meta = load(path)
     assert all(isinstance(v, torch.Tensor) for v in tensors.values())
     assert meta["config"]["variant"] == "brf" and meta["phase"] == "done"
+    # stage 2 learned shading normals (unit-length at init = the smallest axes, facing up) and saved them
+    from brfgs.brdf.geometry import gaussian_normals
+
+    learned = lm.model["normals"].detach()
+    up = torch.zeros_like(learned)
+    up[:, 2] = 1.0
+    geometric = gaussian_normals(lm.model.quats, lm.model.scales, up).detach()
+    assert learned.shape == geometric.shape
+    assert 0 < float((learned - geometric).abs().max()) < 0.5
     run = json.loads((tmp_path / "run" / "run.json").read_text())
     assert run["status"] == "finished"
 

@@ -176,11 +176,12 @@ class BRFModel:
 
         normals = None
         if self.head_cfg.needs_normals:
-            from brfgs.brdf.geometry import gaussian_normals
+            from brfgs.brdf.geometry import shading_normals
 
             q = f["quats"] if idx is None else f["quats"][idx]
             s = f["scales"] if idx is None else f["scales"][idx]
-            normals = gaussian_normals(q, s, omega_o)
+            sn = f.get("normals")
+            normals = shading_normals(q, s, omega_o, None if sn is None else (sn if idx is None else sn[idx]))
         return evaluate_head(self.head_cfg, self.head_params(idx), normals, omega_i, omega_o)
 
     @torch.no_grad()

@@ -49,6 +49,21 @@ def gaussian_normals(quats: torch.Tensor, scales: torch.Tensor, omega_o: torch.T
     return n * sign
 
 
+def shading_normals(quats: torch.Tensor, scales: torch.Tensor, omega_o: torch.Tensor,
+                    normals: torch.Tensor | None = None) -> torch.Tensor:
+    """Normals n_k [N, 3] used by the reflectance head, facing ω_o.
+
+    ``normals`` [N, 3] (any length, any sign): the model's learned shading normals (stage 2,
+    ``TrainConfig.learn_normals``); None: the geometric normal, the smallest axis
+    (:func:`gaussian_normals`).
+    """
+    if normals is None:
+        return gaussian_normals(quats, scales, omega_o)
+    n = normals / torch.linalg.vector_norm(normals, dim=-1, keepdim=True).clamp_min(1e-12)  # [N, 3]
+    side = (n * omega_o).sum(-1, keepdim=True)  # [N, 1]
+    return torch.where(side < 0, -n, n)
+
+
 def view_directions(means: torch.Tensor, camera_centre: torch.Tensor) -> torch.Tensor:
     """ω_o [N, 3]: unit vectors from each Gaussian centre means [N, 3] toward camera_centre [3] (m)."""
     v = camera_centre.to(means.dtype).reshape(1, 3) - means  # [N, 3]

@@ -103,13 +103,31 @@ def gaussian_features(
 
     normals = None
     if head_cfg.needs_normals:
-        from brfgs.brdf.geometry import gaussian_normals
+        from brfgs.brdf.geometry import shading_normals
 
-        normals = gaussian_normals(model.quats, model.scales, omega_o)
+        normals = shading_normals(model.quats, model.scales, omega_o, model.params.get("normals"))
     params = {k: v for k, v in model.params.items() if k in ("z_iso", "z_vol", "z_geo", "z_spec", "rho_raw", "sh", "color")}
     if getattr(model, "centred", False) and head_cfg.kind == "hybrid":
         return centred_hybrid_latent(model, head_cfg, normals, sun_dir, omega_o)
     return evaluate_head(head_cfg, params, normals, sun_dir, omega_o)
+
+
+def camera_depth_normals(model: GaussianModel, cam: Camera) -> torch.Tensor:
+    """Per-Gaussian geometry features [N, 4] for ``cam``: camera-space depth (m along the optical
+    axis) and the unit normal (:func:`brfgs.brdf.geometry.gaussian_normals`, facing the camera)
+    in camera axes (OpenCV: x right, y down, z forward).
+
+    Rasterized and divided by alpha they give the expected depth and normal maps used by the
+    depth-normal consistency loss (:func:`brfgs.train.losses.depth_normal_loss`).
+    """
+    from brfgs.brdf.geometry import gaussian_normals
+
+    means = model.means
+    vm = cam.viewmat.to(means.dtype)  # [4, 4] world -> camera
+    depth = means @ vm[2, :3] + vm[2, 3]  # [N]
+    n_world = gaussian_normals(model.quats, model.scales, view_dirs(means, cam.centre))  # [N, 3]
+    n_cam = n_world @ vm[:3, :3].T  # [N, 3]
+    return torch.cat([depth[:, None], n_cam], -1)
 
 
 def kernel_reference(model: GaussianModel, head_cfg, sun_dir: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -120,9 +138,9 @@ def kernel_reference(model: GaussianModel, head_cfg, sun_dir: torch.Tensor) -> d
     up[:, 2] = 1.0
     normals = None
     if head_cfg.needs_normals:
-        from brfgs.brdf.geometry import gaussian_normals
+        from brfgs.brdf.geometry import shading_normals
 
-        normals = gaussian_normals(model.quats, model.scales, up)
+        normals = shading_normals(model.quats, model.scales, up, model.params.get("normals"))
     rho = roughness_from_raw(model["rho_raw"], head_cfg.rho_min) if "rho_raw" in model else None
     return hybrid_kernels(normals, sun_dir.to(up.dtype), up, rho, head_cfg.components, head_cfg.normal_frame,
                           min_cos=head_cfg.min_cos, f0=head_cfg.f0)

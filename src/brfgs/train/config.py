@@ -32,6 +32,11 @@ class TrainConfig:
         latent_dim: d of the spectral autoencoder (<= 32).
         stage1_steps/stage2_steps: optimisation steps; joint uses their sum.
         alpha_dssim: alpha of eq. 24; beta_cos: beta of eq. 25.
+        lambda_normal: weight of the depth-normal consistency loss in the phases that train
+            geometry (brfgs.train.losses.depth_normal_loss; 0 = off), from the fraction
+            normal_start of the phase on; lambda_flat: weight of the flatness loss
+            (smallest/largest scale). Both give the specular kernel usable normals n_k on flat,
+            textureless surfaces (not in the paper, which leaves n_k to the photometric loss).
         lr_*: Adam learning rates (lr_means is multiplied by the scene extent in metres).
         init_opacity: opacity of the initial Gaussians.
         init_fill_points: add about this many Gaussians on a 2.5-D surface interpolated through
@@ -69,6 +74,11 @@ class TrainConfig:
     stage2_steps: int = 1500
     alpha_dssim: float = 0.2
     beta_cos: float = 0.5
+    lambda_normal: float = 0.05
+    normal_start: float = 0.3
+    lambda_flat: float = 0.01
+    learn_normals: bool = True
+    lr_normals: float = 2e-3
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
     lr_scales: float = 5e-3
@@ -105,6 +115,9 @@ class TrainConfig:
             raise UserError("step counts must be >= 0", field="stage1_steps")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
+        if self.lambda_normal < 0 or self.lambda_flat < 0 or not 0 <= self.normal_start <= 1:
+            raise UserError("lambda_normal and lambda_flat must be >= 0 and normal_start in [0, 1]",
+                            field="lambda_normal")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
         if self.checkpoint_every < 1:

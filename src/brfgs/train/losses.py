@@ -1,4 +1,4 @@
-"""Training losses (paper eqs. 24-27), all masked: invalid (NaN/Inf) target pixels never count.
+"""Training losses (paper eqs. 24-27) and geometry regularisers, all masked: invalid (NaN/Inf) target pixels never count.
 
 Masking: invalid target pixels are replaced by the (detached) prediction so they give
 zero L1/cosine error and do not disturb the SSIM windows; means are over valid pixels.
@@ -97,3 +97,63 @@ def masked_psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -
         return float("nan")
     mse = ((pred - target)[valid] ** 2).mean().clamp_min(1e-12)
     return float(-10 * torch.log10(mse))
+
+
+def normals_from_depth(depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Surface normals [H, W, 3] (camera axes, facing the camera) of a depth map [H, W] (m along
+    the optical axis) from central differences of the back-projected points, and a validity
+    mask [H, W] (border pixels and non-finite or non-positive depths are invalid).
+
+    Pixel (u, v) back-projects to depth · K⁻¹ [u + 0.5, v + 0.5, 1] (pixel centres).
+    """
+    h, w = depth.shape
+    v, u = torch.meshgrid(torch.arange(h, dtype=depth.dtype) + 0.5, torch.arange(w, dtype=depth.dtype) + 0.5,
+                          indexing="ij")
+    x = (u - K[0, 2]) / K[0, 0]
+    y = (v - K[1, 2]) / K[1, 1]
+    ok = torch.isfinite(depth) & (depth > 0)
+    d = torch.where(ok, depth, torch.ones_like(depth))
+    pts = torch.stack([x * d, y * d, d], -1)  # [H, W, 3]
+    dx = torch.zeros_like(pts)
+    dy = torch.zeros_like(pts)
+    dx[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
+    dy[1:-1, :] = pts[2:, :] - pts[:-2, :]
+    n = torch.cross(dx, dy, dim=-1)  # [H, W, 3]; for a fronto-parallel plane (0, 0, +): away from the camera
+    n = -n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    inner = torch.zeros_like(ok)
+    inner[1:-1, 1:-1] = True
+    valid = ok & inner
+    valid[1:-1, 1:-1] &= ok[2:, 1:-1] & ok[:-2, 1:-1] & ok[1:-1, 2:] & ok[1:-1, :-2]
+    return n, valid
+
+
+def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
+    """Depth-normal consistency (as in 2DGS / PGSR): mean over pixels of alpha · (1 − n_r · n_d).
+
+    Args:
+        geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
+            :func:`brfgs.model.render.camera_depth_normals`.
+        alpha: [H, W] accumulated opacity.
+        K: [3, 3] intrinsics of the rendered window.
+    n_r is the normalised rendered normal, n_d the normal of the rendered depth map
+    (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. Gradients
+    reach both, so the Gaussians' orientations and their depths agree: flat, textureless
+    surfaces (water, roofs) get normals from their neighbours' depths.
+    """
+    a = alpha.clamp_min(1e-6)
+    depth = geo[..., 0] / a
+    nr = geo[..., 1:4]
+    nr = nr / nr.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    nd, valid = normals_from_depth(depth, K)
+    valid = valid & (alpha > min_alpha)
+    if not bool(valid.any()):
+        return geo.sum() * 0.0
+    err = (1.0 - (nr * nd).sum(-1)) * alpha
+    return (err * valid).sum() / valid.sum()
+
+
+def flatten_loss(log_scales: torch.Tensor) -> torch.Tensor:
+    """Mean ratio of each Gaussian's smallest to largest scale (0 for a flat disc): makes the
+    normal n_k (the smallest axis) well defined, as in GaussianShader / 2DGS surfels."""
+    s = torch.exp(log_scales)  # [N, 3]
+    return (s.min(-1).values / s.max(-1).values.clamp_min(1e-12)).mean()

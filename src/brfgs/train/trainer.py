@@ -34,6 +34,7 @@ from brfgs.model.densify import DensifyState, accumulate, refine, reset_opacity
 from brfgs.model.gaussians import GaussianModel, init_from_points, scene_extent, surface_fill
 from brfgs.model.optim import NamedAdam
 from brfgs.model.render import (
+    camera_depth_normals,
     Camera,
     NeuralHead,
     camera_from_c2w,
@@ -44,7 +45,7 @@ from brfgs.model.render import (
 )
 from brfgs.train import checkpoint as ckpt
 from brfgs.train.config import TrainConfig
-from brfgs.train.losses import masked_psnr, stage1_loss, stage2_loss
+from brfgs.train.losses import depth_normal_loss, flatten_loss, masked_psnr, stage1_loss, stage2_loss
 
 RUN_FILE = "run.json"
 MODEL_FILE = "model.safetensors"
@@ -541,7 +542,14 @@ class Trainer:
                 torch.manual_seed(cfg.seed)
                 self.neural = NeuralHead(cfg.latent_dim)
             else:
-                params = init_head_params(head_config(cfg), n, cfg.latent_dim, z_init=base)
+                hc = head_config(cfg)
+                params = init_head_params(hc, n, cfg.latent_dim, z_init=base)
+                if cfg.variant == "brf" and cfg.learn_normals and hc.needs_normals:
+                    from brfgs.brdf.geometry import gaussian_normals
+
+                    up = torch.zeros_like(self.model.means)
+                    up[:, 2] = 1.0
+                    params["normals"] = gaussian_normals(self.model.quats, self.model.scales, up).detach()
         self.model.set_head(params, cfg.variant)
         self.model.centred = cfg.centred_kernels and cfg.variant == "brf" and "iso" in cfg.components
         for v in self.extra.values():
@@ -576,6 +584,7 @@ class Trainer:
             for k in ("z_iso", "z_vol", "z_geo", "z_spec", "sh", "feat"):
                 lrs[k] = c.lr_latent
             lrs["rho_raw"] = c.lr_rho
+            lrs["normals"] = c.lr_normals
             lrs["bg_latent"] = c.lr_background
             if self.neural is not None:
                 for k, _ in self.neural.named_parameters():
@@ -630,20 +639,32 @@ class Trainer:
             cam = cam.crop(x0, y0, w, h)
             target, valid = target[y0 : y0 + h, x0 : x0 + w], valid[y0 : y0 + h, x0 : x0 + w]
         backend = c.backend
+        geo_phase = phase in ("stage1", "cir", "joint")
+        reg = geo_phase and c.lambda_normal > 0 and self.step >= int(c.normal_start * getattr(self, "_phase_steps", 0))
         if phase == "stage1":
-            out = rasterize_features(self.model, self.model["colors"], cam, backend)
-            pred = composite_background(out.image, out.alpha, self.extra["bg_colors"])
-            loss = stage1_loss(pred, target, valid, c.alpha_dssim)
-            return loss, masked_psnr(pred, target, valid), out
-        if phase == "cir":
+            feats = self.model["colors"]
+        elif phase == "cir":
             feats = gaussian_features(self.model, cam, self._sun, head_config(c))
-            out = rasterize_features(self.model, feats, cam, backend)
-            pred = composite_background(out.image, out.alpha, self.extra["bg_colors"])
-            loss = stage1_loss(pred, target, valid, c.alpha_dssim)
-            return loss, masked_psnr(pred, target, valid), out
-        feats = gaussian_features(self.model, cam, self._sun, head_config(c), self.neural)
+        else:
+            feats = gaussian_features(self.model, cam, self._sun, head_config(c), self.neural)
+        nch = feats.shape[-1]
+        if reg:  # depth + normal channels for the depth-normal consistency loss
+            feats = torch.cat([feats, camera_depth_normals(self.model, cam)], -1)
         out = rasterize_features(self.model, feats, cam, backend)
-        lat = composite_background(out.image, out.alpha, self.extra["bg_latent"])
+        image = out.image[..., :nch]
+        greg = None
+        if geo_phase:
+            greg = c.lambda_flat * flatten_loss(self.model["log_scales"]) if c.lambda_flat > 0 else None
+            if reg:
+                dn = c.lambda_normal * depth_normal_loss(out.image[..., nch:], out.alpha, cam.K)
+                greg = dn if greg is None else greg + dn
+        if phase in ("stage1", "cir"):
+            pred = composite_background(image, out.alpha, self.extra["bg_colors"])
+            loss = stage1_loss(pred, target, valid, c.alpha_dssim)
+            if greg is not None:
+                loss = loss + greg
+            return loss, masked_psnr(pred, target, valid), out
+        lat = composite_background(image, out.alpha, self.extra["bg_latent"])
         h, w = lat.shape[:2]
         if phase == "stage2" and 0 < c.stage2_rays < h * w:
             # ray sampling: decode and score a random subset of the rendered pixels
@@ -657,6 +678,8 @@ class Trainer:
         if phase == "joint" and c.alpha_dssim > 0:
             sel = self.meta["bands"]
             loss = loss + c.alpha_dssim * (stage1_loss(pred[..., sel], target[..., sel], valid, 1.0))
+        if greg is not None:
+            loss = loss + greg
         return loss, masked_psnr(pred, target, valid), out
 
     def _run_phase(self, phase: str, steps: int) -> None:
@@ -665,6 +688,7 @@ class Trainer:
         if self.decoder is not None:
             self.decoder.requires_grad_(bool(c.finetune_decoder and phase in ("stage2", "joint")))
         densify = phase in ("stage1", "joint", "cir")
+        self._phase_steps = steps
         bar = None
         if self.progress:
             from tqdm import tqdm
