@@ -157,3 +157,14 @@ def test_streaming_and_patch_training(scene, tmp_path):
     assert all(math.isfinite(h[2]) for h in tr.history)
     m = evaluate_run(tmp_path / "p", backend="torch", write_images=False, progress=False)
     assert m["against"]["truth"]["mean"]["psnr"] is not None
+
+
+def test_stage1_view_dependent_colours_train_and_load(scene, tmp_path):
+    tr = Trainer(scene, tmp_path / "run", _cfg(stage1_steps=20, stage2_steps=4, stage1_sh_degree=1), progress=False,
+                 log=None)
+    path = tr.run()
+    lm = LoadedModel(path)
+    rest = lm.model["colors_rest"].detach()
+    assert rest.shape == (lm.model.n, 3, lm.model["colors"].shape[1])
+    assert float(rest.abs().max()) > 0  # learned from zero
+    assert np.isfinite(lm.render(lm.cameras[0], backend="torch")["cube"]).all()

@@ -10,6 +10,7 @@ log_scales         [N, 3]       log of the Gaussian's standard deviations (metre
 quats              [N, 4]       rotation (w, x, y, z), normalised when used
 opacity_logits     [N]          o_k = sigmoid(logit)
 colors             [N, k]       stage-1 reflectance in the k geometry-reliable bands
+colors_rest        [N, s, k]    optional SH rest coefficients of the stage-1 colours (s = 3, 8, 15)
 z_iso .. z_spec    [N, d]       latent kernel coefficients (eq. 11-12), appearance "brf"
 rho_raw            [N]          roughness (brfgs.brdf.head.roughness_from_raw)
 sh                 [N, 16, c]   SH coefficients (appearance "sh": c = d; "cir": c = 3)
@@ -88,7 +89,7 @@ class GaussianModel:
         """Replace the appearance tensors by ``head_params`` (brfgs.brdf.head.init_head_params
         names: z_iso.., rho_raw, sh, color; or "feat" for the neural baseline)."""
         for k in list(self.params):
-            if k not in GEOMETRY_KEYS and k != "colors":
+            if k not in GEOMETRY_KEYS and k not in ("colors", "colors_rest"):
                 del self.params[k]
         for k, v in head_params.items():
             self.params[k] = v.detach().float().clone().requires_grad_(True)

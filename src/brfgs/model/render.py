@@ -93,7 +93,7 @@ def gaussian_features(
     (hybrid/SH in latent space, SH on CIR for the "cir" variant, or the neural head).
     """
     if what == "colors":
-        return model["colors"]
+        return stage1_colors(model, cam)
     means = model.means
     omega_o = view_dirs(means, cam.centre)
     if model.appearance == "neural":
@@ -110,6 +110,20 @@ def gaussian_features(
     if getattr(model, "centred", False) and head_cfg.kind == "hybrid":
         return centred_hybrid_latent(model, head_cfg, normals, sun_dir, omega_o)
     return evaluate_head(head_cfg, params, normals, sun_dir, omega_o)
+
+
+def stage1_colors(model: GaussianModel, cam: Camera) -> torch.Tensor:
+    """Stage-1 reflectance of the selected bands [N, k] for ``cam``: ``colors`` plus, when the model
+    has ``colors_rest`` [N, s, k], the SH rest terms Σ_j Y_j(ω_o) · rest_j (degree 1–3, 3DGS style)."""
+    col = model["colors"]
+    if "colors_rest" not in model:
+        return col
+    from brfgs.brdf.sh import sh_basis
+
+    rest = model["colors_rest"]  # [N, s, k]
+    degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
+    basis = sh_basis(degree, view_dirs(model.means, cam.centre))[:, 1:]  # [N, s]
+    return col + (basis[:, :, None] * rest).sum(1)
 
 
 def camera_depth_normals(model: GaussianModel, cam: Camera) -> torch.Tensor:

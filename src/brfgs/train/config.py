@@ -70,7 +70,7 @@ class TrainConfig:
     ae_steps: int = 800
     ae_batch: int = 1024
     ae_max_pixels: int = 100_000
-    stage1_steps: int = 2000
+    stage1_steps: int = 3000
     stage2_steps: int = 1500
     alpha_dssim: float = 0.2
     beta_cos: float = 0.5
@@ -78,6 +78,7 @@ class TrainConfig:
     normal_start: float = 0.3
     lambda_flat: float = 0.01
     learn_normals: bool = True
+    stage1_sh_degree: int = 0
     lr_normals: float = 2e-3
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
@@ -94,7 +95,7 @@ class TrainConfig:
     centred_kernels: bool = True
     init_opacity: float = 0.1
     init_fill_points: int = 10_000
-    max_gaussians_per_px: float = 1.5
+    max_gaussians_per_px: float = 3.0
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     patch_px: int = 256
     stage2_rays: int = 2048
@@ -118,6 +119,8 @@ class TrainConfig:
         if self.lambda_normal < 0 or self.lambda_flat < 0 or not 0 <= self.normal_start <= 1:
             raise UserError("lambda_normal and lambda_flat must be >= 0 and normal_start in [0, 1]",
                             field="lambda_normal")
+        if not 0 <= int(self.stage1_sh_degree) <= 3:
+            raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
         if self.checkpoint_every < 1:

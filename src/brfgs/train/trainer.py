@@ -35,6 +35,7 @@ from brfgs.model.gaussians import GaussianModel, init_from_points, scene_extent,
 from brfgs.model.optim import NamedAdam
 from brfgs.model.render import (
     camera_depth_normals,
+    stage1_colors,
     Camera,
     NeuralHead,
     camera_from_c2w,
@@ -374,6 +375,12 @@ class Trainer:
         if cfg.init_fill_points > 0:  # colours of every Gaussian from the images it projects into
             with torch.no_grad():
                 self.model.params["colors"].copy_(self._backprojected_targets("colors", encode=False))
+        if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
+            from brfgs.brdf.sh import num_sh_bases
+
+            k = self.model["colors"].shape[1]
+            self.model.params["colors_rest"] = torch.zeros(self.model.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k,
+                                                           requires_grad=True)
         self.dstate = DensifyState(self.model.n)
         self.extra = {"bg_colors": torch.as_tensor(np.nanmean(init.colors, 0), dtype=torch.float32).requires_grad_(True)}
         # spectral autoencoder (not for the CIR-only baseline)
@@ -579,7 +586,7 @@ class Trainer:
             lr_m = math.exp((1 - frac) * math.log(c.lr_means * ext) + frac * math.log(c.lr_means_final * ext))
             lrs.update({"means": lr_m, "log_scales": c.lr_scales, "quats": c.lr_quats, "opacity_logits": c.lr_opacity})
         if phase == "stage1":
-            lrs.update({"colors": c.lr_colors, "bg_colors": c.lr_background})
+            lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "bg_colors": c.lr_background})
         if phase in ("stage2", "joint"):
             for k in ("z_iso", "z_vol", "z_geo", "z_spec", "sh", "feat"):
                 lrs[k] = c.lr_latent
@@ -642,7 +649,7 @@ class Trainer:
         geo_phase = phase in ("stage1", "cir", "joint")
         reg = geo_phase and c.lambda_normal > 0 and self.step >= int(c.normal_start * getattr(self, "_phase_steps", 0))
         if phase == "stage1":
-            feats = self.model["colors"]
+            feats = stage1_colors(self.model, cam)
         elif phase == "cir":
             feats = gaussian_features(self.model, cam, self._sun, head_config(c))
         else:
