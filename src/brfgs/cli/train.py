@@ -40,7 +40,7 @@ def register(app: typer.Typer) -> None:
         lambda_normal: float = typer.Option(None, "--lambda-normal", help="Weight of the depth-normal consistency loss while geometry trains (0 = off; default 0.05)."),
         lambda_flat: float = typer.Option(None, "--lambda-flat", help="Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off; default 0.01)."),
         learn_normals: bool = typer.Option(None, "--learn-normals/--geometric-normals", help="Learn per-Gaussian shading normals in stage 2 (default) or use the smallest axis (paper)."),
-        stage1_sh_degree: int = typer.Option(None, "--stage1-sh-degree", help="View dependence of the stage-1 colours: SH degree 0 (none) to 3."),
+        stage1_sh_degree: int = typer.Option(None, "--stage1-sh-degree", help="View dependence of the stage-1 colours: SH degree 0 (none) to 3 (default 3, as 3DGS)."),
         max_gaussians_per_px: float = typer.Option(None, "--max-gaussians-per-px", help="Cap densification at this many Gaussians per image pixel (0 = no cap)."),
         backend: str = typer.Option(None, "--backend", help="Rasterizer: auto | torch | cpu | cuda."),
         threads: int = typer.Option(None, "--threads", help="CPU threads (0 = all)."),

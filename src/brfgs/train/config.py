@@ -78,7 +78,7 @@ class TrainConfig:
     normal_start: float = 0.3
     lambda_flat: float = 0.01
     learn_normals: bool = True
-    stage1_sh_degree: int = 0
+    stage1_sh_degree: int = 3
     lr_normals: float = 2e-3
     lr_means: float = 1.6e-4
     lr_means_final: float = 1.6e-6
