@@ -57,6 +57,12 @@ def test_bad_options_are_user_errors(scene, tmp_path, capsys):
     assert main(["train", str(scene), str(tmp_path / "x"), "--variant", "nope", "--quiet"]) == 2
     assert "variant" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "missing"), "--quiet"]) == 2
+    for opts, field in ((["--stage1-sh-degree", "4"], "stage1_sh_degree"), (["--lambda-normal", "-1"], "lambda_normal"),
+                        (["--lambda-flat", "-0.1"], "lambda_normal")):
+        capsys.readouterr()
+        assert main(["train", str(scene), str(tmp_path / "y"), *opts, "--quiet"]) == 2
+        assert field in capsys.readouterr().err
+        assert not (tmp_path / "y" / "run.json").exists()
 
 
 def test_ablate_training_cli(scene, tmp_path):
