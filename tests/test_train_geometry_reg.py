@@ -129,3 +129,29 @@ def test_depth_normal_loss_levels_tilted_discs_on_a_plane():
         opt.step()
     after = _tilt_deg(m)
     assert np.median(after) < 0.5 * np.median(before), (np.median(before), np.median(after))
+
+
+def test_normal_smoothness_loss_limits_and_effect():
+    from brfgs.train.losses import normal_smoothness_loss
+
+    g = torch.Generator().manual_seed(0)
+    up = torch.tensor([0.0, 0.0, 1.0]).expand(50, 3).clone()
+    nbr = torch.stack([(torch.arange(50) + s) % 50 for s in (1, 2, 3, 49, 48)], 1)  # ring neighbours
+    assert float(normal_smoothness_loss(up, nbr)) < 1e-12
+    flipped = up * torch.where(torch.rand(50, 1, generator=g) < 0.5, -1.0, 1.0) * 3.0  # sign and length free
+    assert float(normal_smoothness_loss(flipped, nbr)) < 1e-12
+    # a tilted normal among upright neighbours (and nobody's neighbour itself) costs sin² of its tilt
+    tilted = up.clone()
+    tilted[0] = torch.tensor([math.sin(0.3), 0.0, math.cos(0.3)])
+    star = torch.arange(1, 6).expand(50, 5)
+    assert math.isclose(float(normal_smoothness_loss(tilted, star)) * 50, math.sin(0.3) ** 2, rel_tol=1e-5)
+    # minimising it pulls randomly tilted normals (tilts about the vertical) toward their common direction
+    n = (up + 0.4 * torch.randn(50, 3, generator=g)).requires_grad_(True)
+    spread0 = float(normal_smoothness_loss(n, nbr))
+    opt = torch.optim.Adam([n], lr=0.02)
+    for _ in range(100):
+        loss = normal_smoothness_loss(n, nbr)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(normal_smoothness_loss(n, nbr)) < 0.2 * spread0

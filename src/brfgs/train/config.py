@@ -78,6 +78,7 @@ class TrainConfig:
     normal_start: float = 0.3
     lambda_flat: float = 0.01
     learn_normals: bool = True
+    lambda_normal_smooth: float = 0.1
     stage1_sh_degree: int = 3
     lr_normals: float = 2e-3
     lr_means: float = 1.6e-4
@@ -116,7 +117,7 @@ class TrainConfig:
             raise UserError("step counts must be >= 0", field="stage1_steps")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
-        if self.lambda_normal < 0 or self.lambda_flat < 0 or not 0 <= self.normal_start <= 1:
+        if self.lambda_normal < 0 or self.lambda_flat < 0 or self.lambda_normal_smooth < 0 or not 0 <= self.normal_start <= 1:
             raise UserError("lambda_normal and lambda_flat must be >= 0 and normal_start in [0, 1]",
                             field="lambda_normal")
         if not 0 <= int(self.stage1_sh_degree) <= 3:

@@ -157,3 +157,16 @@ def flatten_loss(log_scales: torch.Tensor) -> torch.Tensor:
     normal n_k (the smallest axis) well defined, as in GaussianShader / 2DGS surfels."""
     s = torch.exp(log_scales)  # [N, 3]
     return (s.min(-1).values / s.max(-1).values.clamp_min(1e-12)).mean()
+
+
+def normal_smoothness_loss(normals: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+    """Mean of 1 − (n_i · n̄_i)² over Gaussians: n_i the unit shading normal [N, 3] (any length and
+    sign), n̄_i the unit mean of its neighbours' normals (``neighbours`` [N, k] row indices; normals
+    turned to the upper hemisphere first, the mean detached). Flat surfaces get coherent normals,
+    so a specular lobe seen in one view can be extrapolated to the next.
+    """
+    n = normals / normals.norm(dim=-1, keepdim=True).clamp_min(1e-12)  # [N, 3]
+    n = n * torch.where(n[:, 2:3] < 0, -1.0, 1.0)
+    m = n.detach()[neighbours].mean(1)  # [N, 3]
+    m = m / m.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return (1.0 - (n * m).sum(-1) ** 2).mean()

@@ -46,7 +46,8 @@ from brfgs.model.render import (
 )
 from brfgs.train import checkpoint as ckpt
 from brfgs.train.config import TrainConfig
-from brfgs.train.losses import depth_normal_loss, flatten_loss, masked_psnr, stage1_loss, stage2_loss
+from brfgs.train.losses import (depth_normal_loss, flatten_loss, masked_psnr, normal_smoothness_loss, stage1_loss,
+                                 stage2_loss)
 
 RUN_FILE = "run.json"
 MODEL_FILE = "model.safetensors"
@@ -671,6 +672,8 @@ class Trainer:
             if greg is not None:
                 loss = loss + greg
             return loss, masked_psnr(pred, target, valid), out
+        if phase == "stage2" and c.lambda_normal_smooth > 0 and "normals" in self.model:
+            greg = c.lambda_normal_smooth * normal_smoothness_loss(self.model["normals"], self._neighbours())
         lat = composite_background(image, out.alpha, self.extra["bg_latent"])
         h, w = lat.shape[:2]
         if phase == "stage2" and 0 < c.stage2_rays < h * w:
@@ -679,6 +682,8 @@ class Trainer:
             pred = self.decoder.decode(lat.reshape(h * w, -1)[idx])  # [R, B]
             tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
             loss = stage2_loss(pred, tgt, val, c.beta_cos)
+            if greg is not None:
+                loss = loss + greg
             return loss, masked_psnr(pred, tgt, val), out
         pred = decode_image(self.decoder, lat)
         loss = stage2_loss(pred, target, valid, c.beta_cos)
@@ -688,6 +693,17 @@ class Trainer:
         if greg is not None:
             loss = loss + greg
         return loss, masked_psnr(pred, target, valid), out
+
+    def _neighbours(self, k: int = 8) -> torch.Tensor:
+        """Indices [N, k] of each Gaussian's k nearest other Gaussians (stage 2: the means are frozen)."""
+        n = self.model.n
+        if getattr(self, "_nbr", None) is None or self._nbr.shape[0] != n:
+            from scipy.spatial import cKDTree
+
+            pts = self.model.means.detach().numpy()
+            _, nbr = cKDTree(pts).query(pts, k=min(k, n - 1) + 1)
+            self._nbr = torch.as_tensor(np.asarray(nbr).reshape(n, -1)[:, 1:], dtype=torch.long)
+        return self._nbr
 
     def _run_phase(self, phase: str, steps: int) -> None:
         c = self.cfg
