@@ -87,13 +87,7 @@ def component_latents(bm: BRFModel, idx: torch.Tensor | None, omega_i: torch.Ten
     p = bm.head_params(idx)
     normals = None
     if hc.needs_normals:
-        from brfgs.brdf.geometry import shading_normals
-
-        f = bm.frozen()
-        q = f["quats"] if idx is None else f["quats"][idx]
-        s = f["scales"] if idx is None else f["scales"][idx]
-        sn = f.get("normals")
-        normals = shading_normals(q, s, omega_o, None if sn is None else (sn if idx is None else sn[idx]))
+        normals = bm.head_normals(omega_o, idx)
     ks = hybrid_kernels(normals, omega_i.to(omega_o.dtype), omega_o, _rho(bm, p), hc.components, hc.normal_frame,
                         min_cos=hc.min_cos, f0=hc.f0)
     out = {}
@@ -116,13 +110,7 @@ def nbar_latent(bm: BRFModel, sun_zenith_deg: float, idx: torch.Tensor | None = 
     omega_o = UP.expand(n, 3).contiguous()
     normals = None
     if bm.head_cfg.needs_normals:
-        from brfgs.brdf.geometry import shading_normals
-
-        f = bm.frozen()
-        q = f["quats"] if idx is None else f["quats"][idx]
-        s = f["scales"] if idx is None else f["scales"][idx]
-        sn = f.get("normals")
-        normals = shading_normals(q, s, omega_o, None if sn is None else (sn if idx is None else sn[idx]))
+        normals = bm.head_normals(omega_o, idx)
     return evaluate_head(bm.head_cfg, bm.head_params(idx), normals, omega_i, omega_o)
 
 

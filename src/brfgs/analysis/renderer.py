@@ -165,6 +165,19 @@ class BRFModel:
         return out
 
     @torch.no_grad()
+    def head_normals(self, omega_o: torch.Tensor, idx: torch.Tensor | None = None) -> torch.Tensor:
+        """Normals n_k [n, 3] the head uses for Gaussians ``idx`` (all if None), facing ω_o [n, 3]:
+        the learned shading normals when the model has them, else the smallest axes."""
+        from brfgs.brdf.geometry import shading_normals
+
+        f = self.frozen()
+
+        def rows(t):
+            return None if t is None else (t if idx is None else t[idx])
+
+        return shading_normals(rows(f["quats"]), rows(f["scales"]), omega_o, rows(f.get("normals")))
+
+    @torch.no_grad()
     def gaussian_latent(self, omega_i: torch.Tensor, omega_o: torch.Tensor, idx: torch.Tensor | None = None
                         ) -> torch.Tensor:
         """Latent reflectance [n, d] of Gaussians ``idx`` (all if None) for ω_i [3], ω_o [n, 3]."""
@@ -174,14 +187,7 @@ class BRFModel:
             return self.neural(feat, omega_o, omega_i.expand_as(omega_o))
         from brfgs.brdf.head import evaluate_head
 
-        normals = None
-        if self.head_cfg.needs_normals:
-            from brfgs.brdf.geometry import shading_normals
-
-            q = f["quats"] if idx is None else f["quats"][idx]
-            s = f["scales"] if idx is None else f["scales"][idx]
-            sn = f.get("normals")
-            normals = shading_normals(q, s, omega_o, None if sn is None else (sn if idx is None else sn[idx]))
+        normals = self.head_normals(omega_o, idx) if self.head_cfg.needs_normals else None
         return evaluate_head(self.head_cfg, self.head_params(idx), normals, omega_i, omega_o)
 
     @torch.no_grad()
