@@ -141,14 +141,7 @@ def plot_principal_plane(path: str | Path, signed_zenith_deg: np.ndarray, values
         ax.grid(alpha=0.3)
         if j == 0:
             ax.legend(fontsize=7)
-    for j in range(nb, nrow * ncol):
-        axes[j // ncol][j % ncol].axis("off")
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, path, title, axes, nb)
 
 
 def plot_polar(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray, values: np.ndarray,
@@ -161,34 +154,33 @@ def plot_polar(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray
     nrow = int(np.ceil(nb / ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(3.7 * ncol, 3.5 * nrow), dpi=100, squeeze=False,
                              subplot_kw={"projection": "polar"})
-    dz = float(zenith_deg[1] - zenith_deg[0]) if len(zenith_deg) > 1 else float(2 * zenith_deg[0])
-    da = float(azimuth_deg[1] - azimuth_deg[0]) if len(azimuth_deg) > 1 else 360.0
-    z_edges = np.concatenate([[zenith_deg[0] - dz / 2], zenith_deg + dz / 2])
-    a_edges = np.deg2rad(np.concatenate([[azimuth_deg[0] - da / 2], azimuth_deg + da / 2]))
-    zmax = max_zenith_deg if max_zenith_deg is not None else float(z_edges[-1])
+    zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(zenith_deg, azimuth_deg)[0][-1])
     for j in range(nb):
-        ax = axes[j // ncol][j % ncol]
-        ax.set_theta_zero_location("N")
-        ax.set_theta_direction(-1)
-        v = values[:, :, j]
-        ok = np.isfinite(v)
-        lo, hi = (np.nanpercentile(v[ok], [1, 99]) if ok.any() else (0, 1))
-        pc = ax.pcolormesh(a_edges, z_edges, np.ma.masked_invalid(v), cmap="inferno", vmin=lo,
-                           vmax=max(hi, lo + 1e-9), shading="flat")
-        if sun_zenith_deg <= zmax:
-            ax.plot([np.deg2rad(sun_azimuth_deg)], [sun_zenith_deg], marker="*", color="red", ms=12,
-                    markeredgecolor="white")
-        ax.set_ylim(0, zmax)
-        ax.set_title(f"{wavelengths_nm[j]:.0f} nm", fontsize=9, pad=12)
-        ax.tick_params(labelsize=6)
-        fig.colorbar(pc, ax=ax, shrink=0.7, pad=0.1)
-    for j in range(nb, nrow * ncol):
-        axes[j // ncol][j % ncol].axis("off")
+        lo, hi = _robust_range(values[:, :, j])
+        _polar_panel(fig, axes[j // ncol][j % ncol], zenith_deg, azimuth_deg, values[:, :, j], vmin=lo, vmax=hi,
+                     cmap="inferno", zmax=zmax, sun_zenith_deg=sun_zenith_deg, sun_azimuth_deg=sun_azimuth_deg,
+                     title=f"{wavelengths_nm[j]:.0f} nm")
+    return _finish(fig, path, title, axes, nb)
+
+
+def _robust_range(v: np.ndarray) -> tuple[float, float]:
+    """(1st, 99th) percentile of the finite values of ``v`` (0, 1 if none), with hi > lo."""
+    ok = np.isfinite(v)
+    lo, hi = (np.nanpercentile(v[ok], [1, 99]) if ok.any() else (0.0, 1.0))
+    return float(lo), float(max(hi, lo + 1e-9))
+
+
+def _finish(fig, path: str | Path, title: str, axes=None, used: int = 0) -> Path:
+    """Blank the unused panels of a grid ``axes`` (beyond the first ``used``), add the title, save, close."""
+    if axes is not None:
+        ncol = len(axes[0])
+        for j in range(used, len(axes) * ncol):
+            axes[j // ncol][j % ncol].axis("off")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
+    _plt().close(fig)
     return Path(path)
 
 
@@ -230,10 +222,7 @@ def plot_polar_truth(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.n
                              subplot_kw={"projection": "polar"})
     zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(zenith_deg, azimuth_deg)[0][-1])
     for j in range(nb):
-        both = np.concatenate([values[:, :, j].ravel(), truth_values[:, :, j].ravel()])
-        ok = np.isfinite(both)
-        lo, hi = (np.nanpercentile(both[ok], [1, 99]) if ok.any() else (0.0, 1.0))
-        hi = max(hi, lo + 1e-9)
+        lo, hi = _robust_range(np.concatenate([values[:, :, j].ravel(), truth_values[:, :, j].ravel()]))
         wl = f"{wavelengths_nm[j]:.0f} nm"
         kw = dict(zmax=zmax, sun_zenith_deg=sun_zenith_deg, sun_azimuth_deg=sun_azimuth_deg)
         _polar_panel(fig, axes[j][0], zenith_deg, azimuth_deg, values[:, :, j], vmin=lo, vmax=hi, cmap="inferno",
@@ -245,12 +234,7 @@ def plot_polar_truth(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.n
         m = float(np.nanmax(np.abs(d[okd]))) if okd.any() else 1.0
         _polar_panel(fig, axes[j][2], truth_zenith_deg, truth_azimuth_deg, d, vmin=-max(m, 1e-9), vmax=max(m, 1e-9),
                      cmap="RdBu_r", title=f"BRF-GS − truth, {wl}", label="ΔBRF", **kw)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, path, title)
 
 
 def plot_spectra(path: str | Path, wavelengths_nm: np.ndarray, reconstructed: np.ndarray,
