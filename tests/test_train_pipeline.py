@@ -153,6 +153,12 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
     cfg = _cfg(stage1_steps=6, stage2_steps=6)
     train(scene, tmp_path / "full", cfg, progress=False, log=None)
     s1 = tmp_path / "full" / "checkpoints" / "stage1.safetensors"
+    # the same options from the stage-1 checkpoint reproduce the continuous run (ablations compare like with like)
+    again = train(scene, tmp_path / "again", cfg, progress=False, from_stage1=s1, log=None)
+    ta, _ = load(tmp_path / "full" / "model.safetensors")
+    tb, _ = load(again)
+    assert ta.keys() == tb.keys()
+    assert not [k for k in ta if not torch.equal(ta[k], tb[k])]
     for variant in ("sh", "neural"):
         from dataclasses import replace
 

@@ -846,6 +846,11 @@ class Trainer:
             (self.out / "split.json").write_text(json.dumps(self.meta["scene"]["split"], indent=1))
             self.meta["stage1_from"] = str(Path(path).resolve())
             self.timings = {k: v for k, v in self.timings.items() if k in ("bands", "init", "autoencoder", "stage1")}
+            # continue the stage-1 run's random stream (view order, ray samples): with the same options,
+            # a run started from a stage-1 checkpoint reproduces the continuous run exactly
+            if "rng.torch" in tensors:
+                self.gen.set_state(tensors["rng.torch"])
+            self._perm = list(meta.get("perm", []))
             self._begin_phase("stage2")
             return
         if meta["appearance"] == "neural" and any(k.startswith("neural.") for k in tensors):
