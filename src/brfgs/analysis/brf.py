@@ -243,7 +243,7 @@ def frame_observations(bm: BRFModel, roi: ROI, scene=None, *, splits=("train", "
     observed brightness beyond ``outlier_k_mad`` MADs removed — the reconstructed mean then
     uses the same pixels); with the
     scene's truth/ (simulated scenes), the truth mean over the pixels whose *true* surface
-    point (truth/depth) lies in the ROI. The view direction is measured from the ROI centre.
+    point (truth/depth) lies in the ROI (same outlier removal). The view direction is measured from the ROI centre.
     """
     target = _roi_target(bm, roi)
     omega_i = bm.sun_direction()
@@ -282,14 +282,17 @@ def frame_observations(bm: BRFModel, roi: ROI, scene=None, *, splits=("train", "
                 rec = pix[keep].mean(0)
                 n = int(keep.sum())
             if truth_dir is not None:
-                tru, tn = _truth_mean(truth_dir, fr["name"], c2w, intr, roi)
+                tru, tn = _truth_mean(truth_dir, fr["name"], c2w, intr, roi, outlier_k_mad)
         out.append(FrameObservation(fr["name"], fr.get("split", "train"), zen, az, rel, signed, off, n,
                                     obs, rec if n else None, tru, tn))
     return out
 
 
-def _truth_mean(truth_dir, name: str, c2w, intr, roi: ROI) -> tuple[np.ndarray | None, int]:
-    """Mean truth spectrum over pixels whose true surface point lies in the ROI."""
+def _truth_mean(truth_dir, name: str, c2w, intr, roi: ROI, outlier_k_mad: float = 3.0
+                ) -> tuple[np.ndarray | None, int]:
+    """Mean truth spectrum over pixels whose true surface point lies in the ROI, with the same
+    outlier removal as the observed mean (:func:`robust_keep`: border pixels that mix the ROI
+    with a brighter neighbour, e.g. water next to vegetation in the near infrared)."""
     from pathlib import Path
 
     from brfgs.data.cube_io import envi_image_path
@@ -316,7 +319,9 @@ def _truth_mean(truth_dir, name: str, c2w, intr, roi: ROI) -> tuple[np.ndarray |
     sel &= np.isfinite(cube).all(-1)
     if not sel.any():
         return None, 0
-    return cube[sel].mean(0), int(sel.sum())
+    vals = cube[sel]                                          # [n, B]
+    keep = robust_keep(vals, outlier_k_mad)
+    return vals[keep].mean(0), int(keep.sum())
 
 
 def nearest_to_plane(obs: list[FrameObservation], max_offset_deg: float = 20.0, zenith_bin_deg: float = 4.0
