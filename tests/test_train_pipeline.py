@@ -50,6 +50,9 @@ def test_losses_decrease_in_both_stages_and_model_loads(scene, tmp_path):
     tensors, meta = load(path)
     assert all(isinstance(v, torch.Tensor) for v in tensors.values())
     assert meta["config"]["variant"] == "brf" and meta["phase"] == "done"
+    # stage 1 fitted the selected (SfM) bands and the CIR bands
+    assert meta["stage1_bands"] == sorted(set(meta["bands"]) | set(meta["cir_indices"]))
+    assert len(meta["stage1_bands"]) > len(meta["bands"]) and tensors["param.colors"].shape[1] == len(meta["stage1_bands"])
     # stage 2 learned shading normals (unit-length at init = the smallest axes, facing up) and saved them
     from brfgs.brdf.geometry import gaussian_normals
 
@@ -111,6 +114,10 @@ def test_setup_is_deterministic(scene, tmp_path):
     bad = {k: (tuple(ta[k].shape), tuple(tb[k].shape)) if ta[k].shape != tb[k].shape
            else float((ta[k] - tb[k]).abs().max()) for k in ta if ta[k].shape != tb[k].shape or not torch.equal(ta[k], tb[k])}
     assert not bad, bad
+    # the paper's stage 1: the selected bands only
+    _, mc = load(train(scene, tmp_path / "c", _cfg(stage1_steps=0, stage2_steps=0, stage1_cir_bands=False), progress=False,
+                       log=None))
+    assert mc["stage1_bands"] == mc["bands"] == ma["bands"]
 
 
 def test_finished_run_is_not_overwritten(scene, tmp_path):

@@ -40,6 +40,7 @@ def register(app: typer.Typer) -> None:
         lambda_normal: float = typer.Option(None, "--lambda-normal", help="Weight of the depth-normal consistency loss while geometry trains (0 = off; default 0.05)."),
         lambda_flat: float = typer.Option(None, "--lambda-flat", help="Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off; default 0.01)."),
         learn_normals: bool = typer.Option(None, "--learn-normals/--geometric-normals", help="Learn per-Gaussian shading normals in stage 2 (default) or use the smallest axis (paper)."),
+        stage1_cir_bands: bool = typer.Option(None, "--stage1-cir-bands/--stage1-selected-bands-only", help="Stage 1 also fits the CIR bands (default; not in the paper) or only the selected bands."),
         lambda_normal_smooth: float = typer.Option(None, "--lambda-normal-smooth", help="Weight of the stage-2 smoothness loss of the learned normals over 8 neighbours (0 = off; default 0.1)."),
         stage1_sh_degree: int = typer.Option(None, "--stage1-sh-degree", help="View dependence of the stage-1 colours: SH degree 0 (none) to 3 (default 3, as 3DGS)."),
         max_gaussians_per_px: float = typer.Option(None, "--max-gaussians-per-px", help="Cap densification at this many Gaussians per image pixel (0 = no cap)."),
@@ -58,7 +59,7 @@ def register(app: typer.Typer) -> None:
         cfg = _config(preset, variant=variant, joint=joint, components=components, latent_dim=latent_dim,
                       stage1_steps=stage1_steps, stage2_steps=stage2_steps, downscale=downscale,
                       value_range=value_range, band_strategy=band_strategy, poses=poses, finetune_decoder=finetune_decoder, backend=backend,
-                      lambda_normal=lambda_normal, lambda_flat=lambda_flat, learn_normals=learn_normals, lambda_normal_smooth=lambda_normal_smooth, stage1_sh_degree=stage1_sh_degree, max_gaussians_per_px=max_gaussians_per_px,
+                      lambda_normal=lambda_normal, lambda_flat=lambda_flat, learn_normals=learn_normals, lambda_normal_smooth=lambda_normal_smooth, stage1_cir_bands=stage1_cir_bands, stage1_sh_degree=stage1_sh_degree, max_gaussians_per_px=max_gaussians_per_px,
                       threads=threads, seed=seed, checkpoint_every=checkpoint_every)
         path = train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1,
                      log=(lambda *a: None) if quiet else typer.echo)

@@ -25,7 +25,9 @@ class TrainConfig:
             "cir" (3DGS with SH degree 3 on CIR composites only; no spectra).
         components: hybrid kernel terms used by "brf" (Table 3 ablations).
         joint: train geometry and reflectance at once on all bands (Table 4 ablation).
-        band_strategy/top: band selection for stage 1 and initialisation (brfgs.bands).
+        band_strategy/top: band selection for initialisation (SfM) and stage 1 (brfgs.bands).
+        stage1_cir_bands: stage 1 also fits the CIR bands (green, red, NIR) next to the selected
+            ones; they carry the visible-band texture (not in the paper, which fits the selected bands only).
         poses: "known" | "sfm" | "auto" (brfgs.init).
         downscale: integer area-average factor applied when reading cubes.
         value_range: plausible reflectance range of the cubes (brfgs.data.read_scene).
@@ -63,6 +65,7 @@ class TrainConfig:
     joint: bool = False
     band_strategy: str = "efc-top3"
     top: int = 3
+    stage1_cir_bands: bool = True
     poses: str = "auto"
     downscale: int = 1
     value_range: tuple[float, float] = (-0.5, 10.0)
@@ -178,6 +181,7 @@ def preset(name: str, **overrides) -> TrainConfig:
             stage2_rays=0,
             init_fill_points=0,
             max_gaussians_per_px=0.0,
+            stage1_cir_bands=False,
         )
     elif name == "tiny":
         cfg = TrainConfig(

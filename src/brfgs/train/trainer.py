@@ -357,9 +357,13 @@ class Trainer:
         self.log(f"init: {init.points.shape[0]} points ({init.report.get('poses', cfg.poses)})")
         cir_idx = cir_band_indices(sc.wavelengths_nm)
         cir_sc = cir_scale(sc)
+        # stage 1 fits the selected bands and, by default, the CIR bands (green, red, NIR): the selected
+        # bands make SfM reliable, the CIR bands carry the visible texture that the composites show
+        s1 = sorted(set(bands) | {int(i) for i in cir_idx}) if cfg.stage1_cir_bands else bands
         self.meta = {
             "scene": scene_description(sc, init.c2w),
             "bands": bands,
+            "stage1_bands": s1,
             "cir_indices": list(cir_idx),
             "cir_scale": [float(v) for v in cir_sc],
             "extent_m": scene_extent(init.points),
@@ -372,8 +376,10 @@ class Trainer:
                 pts = np.concatenate([pts, extra], 0)
                 cols = np.concatenate([cols, np.full((extra.shape[0], cols.shape[1]), np.nan)], 0)
             self.log(f"init: +{extra.shape[0]} surface-fill points")
+        if s1 != bands:  # colours of the extra bands come from the images below
+            cols = np.full((cols.shape[0], len(s1)), np.nan)
         self.model = init_from_points(pts, np.nan_to_num(cols), cfg.latent_dim, cfg.init_opacity)
-        if cfg.init_fill_points > 0:  # colours of every Gaussian from the images it projects into
+        if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
             with torch.no_grad():
                 self.model.params["colors"].copy_(self._backprojected_targets("colors", encode=False))
         if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
@@ -383,7 +389,8 @@ class Trainer:
             self.model.params["colors_rest"] = torch.zeros(self.model.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k,
                                                            requires_grad=True)
         self.dstate = DensifyState(self.model.n)
-        self.extra = {"bg_colors": torch.as_tensor(np.nanmean(init.colors, 0), dtype=torch.float32).requires_grad_(True)}
+        bg = np.nanmean(init.colors, 0) if s1 == bands else self.model["colors"].detach().mean(0).numpy()  # [C]
+        self.extra = {"bg_colors": torch.as_tensor(bg, dtype=torch.float32).requires_grad_(True)}
         # spectral autoencoder (not for the CIR-only baseline)
         if cfg.variant != "cir":
             t = time.perf_counter()
@@ -425,13 +432,17 @@ class Trainer:
             self._stores = {}
         return self._stores
 
+    def _stage1_bands(self) -> list[int]:
+        """Band indices that stage 1 fits (runs before stage1_cir_bands: the selected bands)."""
+        return list(self.meta.get("stage1_bands", self.meta["bands"]))
+
     def store(self, kind: str) -> ImageStore:
-        """Image store of the training frames: "colors" (selected bands), "full" (all), "cir"."""
+        """Image store of the training frames: "colors" (stage-1 bands), "full" (all), "cir"."""
         stores = self._train_stores()
         if kind not in stores:
             sc = self.scene
             if kind == "colors":
-                s = ImageStore(sc, sc.train_indices, bands=self.meta["bands"], cache_gib=self.cfg.cache_gib)
+                s = ImageStore(sc, sc.train_indices, bands=self._stage1_bands(), cache_gib=self.cfg.cache_gib)
             elif kind == "full":
                 s = ImageStore(sc, sc.train_indices, bands=None, cache_gib=self.cfg.cache_gib)
             else:
@@ -688,7 +699,7 @@ class Trainer:
         pred = decode_image(self.decoder, lat)
         loss = stage2_loss(pred, target, valid, c.beta_cos)
         if phase == "joint" and c.alpha_dssim > 0:
-            sel = self.meta["bands"]
+            sel = self._stage1_bands()
             loss = loss + c.alpha_dssim * (stage1_loss(pred[..., sel], target[..., sel], valid, 1.0))
         if greg is not None:
             loss = loss + greg
@@ -825,7 +836,7 @@ class Trainer:
 
         tensors, meta = ckpt.load(path)
         saved_cfg = TrainConfig.from_dict(meta["config"])
-        self.meta = {k: meta[k] for k in ("scene", "bands", "cir_indices", "cir_scale", "extent_m") if k in meta}
+        self.meta = {k: meta[k] for k in ("scene", "bands", "stage1_bands", "cir_indices", "cir_scale", "extent_m") if k in meta}
         if "autoencoder_report" in meta:
             self.meta["autoencoder_report"] = meta["autoencoder_report"]
         self.model = GaussianModel(ckpt.with_prefix(tensors, "param."), meta["appearance"], meta["latent_dim"], meta["n_colors"])
