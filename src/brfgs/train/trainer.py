@@ -433,7 +433,7 @@ class Trainer:
         return self._stores
 
     def _stage1_bands(self) -> list[int]:
-        """Band indices that stage 1 fits (runs before stage1_cir_bands: the selected bands)."""
+        """Band indices that stage 1 fits (runs made before stage1_cir_bands existed: the selected bands)."""
         return list(self.meta.get("stage1_bands", self.meta["bands"]))
 
     def store(self, kind: str) -> ImageStore:
