@@ -9,13 +9,19 @@ from brfgs.model.gaussians import init_from_points
 from brfgs.model.render import centred_hybrid_latent, uncentre, view_dirs
 
 
-def test_centred_equals_eq12_after_uncentre():
-    torch.manual_seed(0)
-    rng = np.random.default_rng(0)
-    m = init_from_points(rng.uniform(-5, 5, (40, 3)), rng.uniform(0, 1, (40, 3)), latent_dim=5)
+def _random_model(n: int, latent_dim: int, seed: int):
+    """n Gaussians at random positions with random rotations and scales (torch and numpy seeded)."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    m = init_from_points(rng.uniform(-5, 5, (n, 3)), rng.uniform(0, 1, (n, 3)), latent_dim=latent_dim)
     with torch.no_grad():
-        m.params["quats"].copy_(torch.randn(40, 4))
-        m.params["log_scales"].copy_(torch.randn(40, 3))
+        m.params["quats"].copy_(torch.randn(n, 4))
+        m.params["log_scales"].copy_(torch.randn(n, 3))
+    return m
+
+
+def test_centred_equals_eq12_after_uncentre():
+    m = _random_model(40, 5, seed=0)
     cfg = HeadConfig(kind="hybrid")
     params = init_head_params(cfg, 40, 5, z_init=torch.randn(40, 5))
     for k in ("z_vol", "z_geo", "z_spec"):
@@ -43,12 +49,7 @@ def test_learned_shading_normals_replace_the_smallest_axis():
     """With a 'normals' tensor the head uses it (normalised, facing ω_o), in the centred and the eq. 12 form."""
     from brfgs.brdf.geometry import shading_normals
 
-    torch.manual_seed(1)
-    rng = np.random.default_rng(1)
-    m = init_from_points(rng.uniform(-5, 5, (30, 3)), rng.uniform(0, 1, (30, 3)), latent_dim=4)
-    with torch.no_grad():
-        m.params["quats"].copy_(torch.randn(30, 4))
-        m.params["log_scales"].copy_(torch.randn(30, 3))
+    m = _random_model(30, 4, seed=1)
     wo = view_dirs(m.means, torch.tensor([20.0, -10.0, 90.0]))
     # no learned normals: the smallest axis
     assert torch.equal(shading_normals(m.quats, m.scales, wo, None), gaussian_normals(m.quats, m.scales, wo))

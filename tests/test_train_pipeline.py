@@ -29,6 +29,12 @@ def _cfg(**kw):
     return preset("tiny", **base)
 
 
+def _differing(ta: dict, tb: dict, same) -> dict:
+    """{name: (shape a, shape b) or largest difference} of the tensors of ta that ``same`` finds unlike tb's."""
+    return {k: (tuple(ta[k].shape), tuple(tb[k].shape)) if ta[k].shape != tb[k].shape
+            else float((ta[k] - tb[k]).abs().max()) for k in ta if ta[k].shape != tb[k].shape or not same(ta[k], tb[k])}
+
+
 def _halves(hist, phase):
     loss = np.array([h[2] for h in hist if h[0] == phase])
     k = len(loss) // 4
@@ -95,9 +101,7 @@ def test_resume_after_interruption_reproduces_uninterrupted(scene, tmp_path):
     ta, _ = load(ref)
     tb, _ = load(out)
     assert ta.keys() == tb.keys()
-    bad = {k: (tuple(ta[k].shape), tuple(tb[k].shape)) if ta[k].shape != tb[k].shape
-           else float((ta[k] - tb[k]).abs().max())
-           for k in ta if ta[k].shape != tb[k].shape or not torch.allclose(ta[k], tb[k], atol=1e-6, rtol=1e-5)}
+    bad = _differing(ta, tb, lambda a, b: torch.allclose(a, b, atol=1e-6, rtol=1e-5))
     assert not bad, bad  # every differing tensor: (shape a, shape b) or its largest difference
 
 
@@ -111,8 +115,7 @@ def test_setup_is_deterministic(scene, tmp_path):
     pa, pb = (tmp_path / "a" / "init" / "points.ply").read_bytes(), (tmp_path / "b" / "init" / "points.ply").read_bytes()
     assert pa == pb, "initialisation differs"
     assert ta.keys() == tb.keys()
-    bad = {k: (tuple(ta[k].shape), tuple(tb[k].shape)) if ta[k].shape != tb[k].shape
-           else float((ta[k] - tb[k]).abs().max()) for k in ta if ta[k].shape != tb[k].shape or not torch.equal(ta[k], tb[k])}
+    bad = _differing(ta, tb, torch.equal)
     assert not bad, bad
     # the paper's stage 1: the selected bands only
     _, mc = load(train(scene, tmp_path / "c", _cfg(stage1_steps=0, stage2_steps=0, stage1_cir_bands=False), progress=False,
