@@ -54,7 +54,8 @@ class InitConfig:
     detect_max_px: int | None = 2048            # detect on an integer-downscaled copy above this size
     detect_upsample: int = 0                    # detect on a ×n cubic-upsampled copy; 0 = auto (2 up to 256 px)
     num_threads: int = 1                        # COLMAP mapping threads (1 = deterministic mapping)
-    match_threads: int = -1                     # COLMAP matching threads (-1 = all; results do not depend on it)
+    match_threads: int = 1                      # COLMAP matching threads (1 = deterministic: with more, the
+    #                                             two-view RANSAC draws depend on thread scheduling; -1 = all)
     guided_matching: bool = True                # SfM: re-match verified pairs along their epipolar geometry
     rectify: bool = True                        # SfM: detect on nadir-rectified copies of oblique views (beyond
     #                                             the paper; uses only the cameras' orientation from transforms.json)
