@@ -39,6 +39,9 @@ def register(app: typer.Typer) -> None:
         finetune_decoder: bool = typer.Option(None, "--finetune-decoder/--frozen-decoder", help="Optimise the spectral decoder in stage 2."),
         lambda_normal: float = typer.Option(None, "--lambda-normal", help="Weight of the depth-normal consistency loss while geometry trains (0 = off; default 0.05)."),
         lambda_flat: float = typer.Option(None, "--lambda-flat", help="Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off; default 0.01)."),
+        lambda_depth_conc: float = typer.Option(None, "--lambda-depth-conc", help="Weight of the ray-wise depth concentration loss (surface prior; sharper depth maps, lower PSNR) while geometry trains (0 = off, default)."),
+        lambda_depth_smooth: float = typer.Option(None, "--lambda-depth-smooth", help="Weight of the edge-aware second-order smoothness of the rendered inverse depth while geometry trains (0 = off; default 50)."),
+        lr_spec: float = typer.Option(None, "--lr-spec", help="Adam learning rate of the specular latent z_spec (default 0.2; the other latents use 0.01)."),
         learn_normals: bool = typer.Option(None, "--learn-normals/--geometric-normals", help="Learn per-Gaussian shading normals in stage 2 (default) or use the smallest axis (paper)."),
         stage1_cir_bands: bool = typer.Option(None, "--stage1-cir-bands/--stage1-selected-bands-only", help="Stage 1 also fits the CIR bands (default; not in the paper) or only the selected bands."),
         lambda_normal_smooth: float = typer.Option(None, "--lambda-normal-smooth", help="Weight of the stage-2 smoothness loss of the learned normals over 8 neighbours (0 = off; default 0.1)."),
@@ -59,7 +62,7 @@ def register(app: typer.Typer) -> None:
         cfg = _config(preset, variant=variant, joint=joint, components=components, latent_dim=latent_dim,
                       stage1_steps=stage1_steps, stage2_steps=stage2_steps, downscale=downscale,
                       value_range=value_range, band_strategy=band_strategy, poses=poses, finetune_decoder=finetune_decoder, backend=backend,
-                      lambda_normal=lambda_normal, lambda_flat=lambda_flat, learn_normals=learn_normals, lambda_normal_smooth=lambda_normal_smooth, stage1_cir_bands=stage1_cir_bands, stage1_sh_degree=stage1_sh_degree, max_gaussians_per_px=max_gaussians_per_px,
+                      lambda_normal=lambda_normal, lambda_flat=lambda_flat, lambda_depth_conc=lambda_depth_conc, lambda_depth_smooth=lambda_depth_smooth, lr_spec=lr_spec, learn_normals=learn_normals, lambda_normal_smooth=lambda_normal_smooth, stage1_cir_bands=stage1_cir_bands, stage1_sh_degree=stage1_sh_degree, max_gaussians_per_px=max_gaussians_per_px,
                       threads=threads, seed=seed, checkpoint_every=checkpoint_every)
         path = train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1,
                      log=(lambda *a: None) if quiet else typer.echo)

@@ -144,6 +144,16 @@ def camera_depth_normals(model: GaussianModel, cam: Camera) -> torch.Tensor:
     return torch.cat([depth[:, None], n_cam], -1)
 
 
+def camera_depth_squared(model: GaussianModel, cam: Camera) -> torch.Tensor:
+    """Per-Gaussian squared camera-space depth t² [N, 1] (m²) for ``cam``; rasterized next to the
+    depth of :func:`camera_depth_normals` it gives the ray-wise depth variance
+    (:func:`brfgs.train.losses.depth_concentration_loss`)."""
+    means = model.means
+    vm = cam.viewmat.to(means.dtype)  # [4, 4] world -> camera
+    depth = means @ vm[2, :3] + vm[2, 3]  # [N]
+    return (depth * depth)[:, None]
+
+
 def kernel_reference(model: GaussianModel, head_cfg, sun_dir: torch.Tensor) -> dict[str, torch.Tensor]:
     """Kernel values {"vol","geo","spec": [N]} of every Gaussian for a nadir view (omega_o = +z)."""
     from brfgs.brdf.head import hybrid_kernels, roughness_from_raw

@@ -32,6 +32,9 @@ class TrainConfig:
         downscale: integer area-average factor applied when reading cubes.
         value_range: plausible reflectance range of the cubes (brfgs.data.read_scene).
         latent_dim: d of the spectral autoencoder (<= 32).
+        ae_steps/ae_batch/ae_max_pixels: its Adam steps, batch and the training pixels sampled
+            (2400 steps: half the spectral angle of 800 on the truth of the 128² testsite,
+            0.0077 vs 0.0150 rad, for about a minute more; docs/results.md, Session 4).
         stage1_steps/stage2_steps: optimisation steps; joint uses their sum.
         alpha_dssim: alpha of eq. 24; beta_cos: beta of eq. 25.
         lambda_normal: weight of the depth-normal consistency loss in the phases that train
@@ -39,7 +42,14 @@ class TrainConfig:
             normal_start of the phase on; lambda_flat: weight of the flatness loss
             (smallest/largest scale). Both give the specular kernel usable normals n_k on flat,
             textureless surfaces (not in the paper, which leaves n_k to the photometric loss).
+        lambda_depth_conc: weight of the ray-wise depth concentration loss (surface prior, as 2DGS's
+            distortion loss; brfgs.train.losses.depth_concentration_loss); lambda_depth_smooth: weight
+            of the edge-aware second-order smoothness of the rendered inverse depth
+            (brfgs.train.losses.depth_smoothness_loss). Both from normal_start on, 0 = off.
         lr_*: Adam learning rates (lr_means is multiplied by the scene extent in metres).
+            lr_spec (z_spec) is 20x lr_latent: a glint needs a specular latent an order of
+            magnitude larger than the others (K_Cook carries F0 = 0.04), and its few glinting
+            pixels give it few steps to get there (docs/results.md, Session 4).
         init_opacity: opacity of the initial Gaussians.
         init_fill_points: add about this many Gaussians on a 2.5-D surface interpolated through
             the sparse points (0 = sparse points only, as in 3DGS); helps short CPU schedules.
@@ -70,7 +80,7 @@ class TrainConfig:
     downscale: int = 1
     value_range: tuple[float, float] = (-0.5, 10.0)
     latent_dim: int = 16
-    ae_steps: int = 800
+    ae_steps: int = 2400
     ae_batch: int = 1024
     ae_max_pixels: int = 100_000
     stage1_steps: int = 3000
@@ -80,6 +90,8 @@ class TrainConfig:
     lambda_normal: float = 0.05
     normal_start: float = 0.3
     lambda_flat: float = 0.01
+    lambda_depth_conc: float = 0.0
+    lambda_depth_smooth: float = 50.0
     learn_normals: bool = True
     lambda_normal_smooth: float = 0.1
     stage1_sh_degree: int = 3
@@ -91,6 +103,7 @@ class TrainConfig:
     lr_opacity: float = 5e-2
     lr_colors: float = 5e-3
     lr_latent: float = 1e-2
+    lr_spec: float = 0.2
     lr_rho: float = 1e-2
     lr_neural: float = 2e-3
     lr_decoder: float = 1e-4
@@ -120,9 +133,12 @@ class TrainConfig:
             raise UserError("step counts must be >= 0", field="stage1_steps")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
-        if self.lambda_normal < 0 or self.lambda_flat < 0 or self.lambda_normal_smooth < 0 or not 0 <= self.normal_start <= 1:
-            raise UserError("lambda_normal and lambda_flat must be >= 0 and normal_start in [0, 1]",
-                            field="lambda_normal")
+        lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth")
+        for name in lambdas:
+            if getattr(self, name) < 0:
+                raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
+        if not 0 <= self.normal_start <= 1:
+            raise UserError(f"normal_start must be in [0, 1], got {self.normal_start}", field="normal_start")
         if not 0 <= int(self.stage1_sh_degree) <= 3:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if self.downscale < 1:

@@ -152,6 +152,66 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
     return (err * valid).sum() / valid.sum()
 
 
+def depth_concentration_loss(geo: torch.Tensor, alpha: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
+    """Ray-wise spread of the blended depths (a surface prior, like 2DGS's depth distortion):
+    mean over pixels of alpha · sqrt(Var_w[t]) / E_w[t].
+
+    Args:
+        geo: [H, W, 2] rasterized (premultiplied) camera depth t and t² (m, m²)
+            (:func:`brfgs.model.render.camera_depth_normals` channel 0,
+            :func:`brfgs.model.render.camera_depth_squared`); E_w[·] = channel / alpha.
+        alpha: [H, W] accumulated opacity; pixels below ``min_alpha`` do not count.
+    Zero when every ray's weight sits at one depth; a semi-transparent cloud 1 m thick seen
+    from 100 m gives about 0.005 per pixel. Without it a textureless surface (water) can be
+    replaced by a thick cloud of Gaussians that fits the views as well.
+    """
+    a = alpha.clamp_min(1e-6)
+    m1 = geo[..., 0] / a  # [H, W] E[t]
+    var = (geo[..., 1] / a - m1 * m1).clamp_min(0.0)  # [H, W]
+    valid = alpha > min_alpha
+    if not bool(valid.any()):
+        return geo.sum() * 0.0
+    rel = torch.sqrt(var + 1e-10) / m1.detach().clamp_min(1e-6)
+    return (rel * alpha)[valid].mean()
+
+
+def depth_smoothness_loss(depth_premult: torch.Tensor, alpha: torch.Tensor, target: torch.Tensor,
+                          valid: torch.Tensor, edge_rel: float = 0.05, min_alpha: float = 0.5) -> torch.Tensor:
+    """Edge-aware second-order smoothness of the rendered inverse depth (a planar prior for
+    textureless regions): mean over pixel triples along x and y of
+    w · |d⁻¹(p−1) − 2 d⁻¹(p) + d⁻¹(p+1)| / d⁻¹(p), w = exp(−max_c |ΔI_c| / (edge_rel · Ī_c)).
+
+    Args:
+        depth_premult: [H, W] rasterized (premultiplied) camera depth (m); depth = it / alpha.
+        alpha: [H, W]; target: [H, W, C] the observed image; valid: [H, W] its valid pixels.
+        edge_rel: target contrast (relative to the channel mean Ī_c over the window) at which the
+            weight drops to 1/e.
+    The inverse camera depth of a plane is affine in the pixel coordinates, so planes cost
+    nothing; where the image has no texture (w ≈ 1) the depth cannot be told by the photometric
+    loss and is interpolated from the textured rim instead.
+    """
+    ok = valid & (alpha > min_alpha)
+    inv = alpha.clamp_min(1e-6) / depth_premult.clamp_min(1e-6)  # [H, W] 1/depth (1/m)
+    t = torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0)  # [H, W, C]
+    scale = edge_rel * t[valid].abs().mean(0).clamp_min(1e-6) if bool(valid.any()) else torch.ones(t.shape[-1])
+    total = depth_premult.sum() * 0.0
+    count = 0
+    for dim in (0, 1):
+        n = inv.shape[dim]
+        if n < 3:
+            continue
+        a_, b_, c_ = (inv.narrow(dim, k, n - 2) for k in range(3))
+        ta, tb, tc = (t.narrow(dim, k, n - 2) for k in range(3))
+        oa, ob, oc = (ok.narrow(dim, k, n - 2) for k in range(3))
+        grad = torch.maximum((tb - ta).abs(), (tc - tb).abs()) / scale  # [.., .., C]
+        w = torch.exp(-grad.max(-1).values)
+        m = oa & ob & oc
+        if bool(m.any()):
+            total = total + (w * (a_ - 2 * b_ + c_).abs() / b_.detach().clamp_min(1e-9))[m].sum()
+            count += int(m.sum())
+    return total / max(count, 1)
+
+
 def flatten_loss(log_scales: torch.Tensor) -> torch.Tensor:
     """Mean ratio of each Gaussian's smallest to largest scale (0 for a flat disc): makes the
     normal n_k (the smallest axis) well defined, as in GaussianShader / 2DGS surfels."""

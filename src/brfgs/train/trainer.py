@@ -35,6 +35,7 @@ from brfgs.model.gaussians import GaussianModel, init_from_points, scene_extent,
 from brfgs.model.optim import NamedAdam
 from brfgs.model.render import (
     camera_depth_normals,
+    camera_depth_squared,
     stage1_colors,
     Camera,
     NeuralHead,
@@ -46,8 +47,8 @@ from brfgs.model.render import (
 )
 from brfgs.train import checkpoint as ckpt
 from brfgs.train.config import TrainConfig
-from brfgs.train.losses import (depth_normal_loss, flatten_loss, masked_psnr, normal_smoothness_loss, stage1_loss,
-                                 stage2_loss)
+from brfgs.train.losses import (depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
+                                 masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
 
 RUN_FILE = "run.json"
 MODEL_FILE = "model.safetensors"
@@ -600,8 +601,9 @@ class Trainer:
         if phase == "stage1":
             lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "bg_colors": c.lr_background})
         if phase in ("stage2", "joint"):
-            for k in ("z_iso", "z_vol", "z_geo", "z_spec", "sh", "feat"):
+            for k in ("z_iso", "z_vol", "z_geo", "sh", "feat"):
                 lrs[k] = c.lr_latent
+            lrs["z_spec"] = c.lr_spec
             lrs["rho_raw"] = c.lr_rho
             lrs["normals"] = c.lr_normals
             lrs["bg_latent"] = c.lr_background
@@ -659,7 +661,8 @@ class Trainer:
             target, valid = target[y0 : y0 + h, x0 : x0 + w], valid[y0 : y0 + h, x0 : x0 + w]
         backend = c.backend
         geo_phase = phase in ("stage1", "cir", "joint")
-        reg = geo_phase and c.lambda_normal > 0 and self.step >= int(c.normal_start * getattr(self, "_phase_steps", 0))
+        surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0
+        reg = geo_phase and surf and self.step >= int(c.normal_start * getattr(self, "_phase_steps", 0))
         if phase == "stage1":
             feats = stage1_colors(self.model, cam)
         elif phase == "cir":
@@ -667,16 +670,27 @@ class Trainer:
         else:
             feats = gaussian_features(self.model, cam, self._sun, head_config(c), self.neural)
         nch = feats.shape[-1]
-        if reg:  # depth + normal channels for the depth-normal consistency loss
-            feats = torch.cat([feats, camera_depth_normals(self.model, cam)], -1)
+        if reg:  # depth + normal (+ depth²) channels for the surface priors
+            geo_feats = [feats, camera_depth_normals(self.model, cam)]
+            if c.lambda_depth_conc > 0:
+                geo_feats.append(camera_depth_squared(self.model, cam))
+            feats = torch.cat(geo_feats, -1)
         out = rasterize_features(self.model, feats, cam, backend)
         image = out.image[..., :nch]
         greg = None
         if geo_phase:
             greg = c.lambda_flat * flatten_loss(self.model["log_scales"]) if c.lambda_flat > 0 else None
             if reg:
-                dn = c.lambda_normal * depth_normal_loss(out.image[..., nch:], out.alpha, cam.K)
-                greg = dn if greg is None else greg + dn
+                geo = out.image[..., nch:]  # [H, W, 4 or 5] depth, normal (, depth²)
+                terms = []
+                if c.lambda_normal > 0:
+                    terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, cam.K))
+                if c.lambda_depth_conc > 0:
+                    terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
+                if c.lambda_depth_smooth > 0:
+                    terms.append(c.lambda_depth_smooth * depth_smoothness_loss(geo[..., 0], out.alpha, target, valid))
+                for t in terms:
+                    greg = t if greg is None else greg + t
         if phase in ("stage1", "cir"):
             pred = composite_background(image, out.alpha, self.extra["bg_colors"])
             loss = stage1_loss(pred, target, valid, c.alpha_dssim)
