@@ -174,6 +174,8 @@ def test_cli_init_known_and_ablation(toy, tmp_path):
     assert main(["init", str(toy.root), str(tmp_path / "r2"), "--bands", "1,5", "--poses", "known", "-q"]) == 0
     assert json.loads((tmp_path / "r2" / "init_report.json").read_text())["bands"]["indices"] == [1, 5]
     assert main(["init", str(toy.root), str(tmp_path / "r3"), "--poses", "maybe", "-q"]) == 2
+    assert main(["init", str(toy.root), str(tmp_path / "r4"), "--match-threads", "0", "-q"]) == 2
+    assert not (tmp_path / "r4").exists()
 
 
 def test_strategy_ablation_rows(tmp_path, capsys):
