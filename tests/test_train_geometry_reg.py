@@ -147,11 +147,11 @@ def test_normal_smoothness_loss_limits_and_effect():
     assert math.isclose(float(normal_smoothness_loss(tilted, star)) * 50, math.sin(0.3) ** 2, rel_tol=1e-5)
     # minimising it pulls randomly tilted normals (tilts about the vertical) toward their common direction
     n = (up + 0.4 * torch.randn(50, 3, generator=g)).requires_grad_(True)
-    spread0 = float(normal_smoothness_loss(n, nbr))
+    spread0 = float(normal_smoothness_loss(n, nbr).detach())
     opt = torch.optim.Adam([n], lr=0.02)
     for _ in range(100):
         loss = normal_smoothness_loss(n, nbr)
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert float(normal_smoothness_loss(n, nbr)) < 0.2 * spread0
+    assert float(normal_smoothness_loss(n, nbr).detach()) < 0.2 * spread0

@@ -138,19 +138,22 @@ def camera_depth_normals(model: GaussianModel, cam: Camera) -> torch.Tensor:
 
     means = model.means
     vm = cam.viewmat.to(means.dtype)  # [4, 4] world -> camera
-    depth = means @ vm[2, :3] + vm[2, 3]  # [N]
     n_world = gaussian_normals(model.quats, model.scales, view_dirs(means, cam.centre))  # [N, 3]
     n_cam = n_world @ vm[:3, :3].T  # [N, 3]
-    return torch.cat([depth[:, None], n_cam], -1)
+    return torch.cat([camera_depth(model, cam)[:, None], n_cam], -1)
+
+
+def camera_depth(model: GaussianModel, cam: Camera) -> torch.Tensor:
+    """Camera-space depth [N] (m along the optical axis) of every Gaussian centre for ``cam``."""
+    vm = cam.viewmat.to(model.means.dtype)  # [4, 4] world -> camera
+    return model.means @ vm[2, :3] + vm[2, 3]
 
 
 def camera_depth_squared(model: GaussianModel, cam: Camera) -> torch.Tensor:
     """Per-Gaussian squared camera-space depth t² [N, 1] (m²) for ``cam``; rasterized next to the
     depth of :func:`camera_depth_normals` it gives the ray-wise depth variance
     (:func:`brfgs.train.losses.depth_concentration_loss`)."""
-    means = model.means
-    vm = cam.viewmat.to(means.dtype)  # [4, 4] world -> camera
-    depth = means @ vm[2, :3] + vm[2, 3]  # [N]
+    depth = camera_depth(model, cam)  # [N]
     return (depth * depth)[:, None]
 
 
