@@ -137,6 +137,9 @@ class TrainConfig:
         for name in lambdas:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
+        for f in fields(self):
+            if f.name.startswith("lr_") and not getattr(self, f.name) > 0:
+                raise UserError(f"{f.name} must be > 0, got {getattr(self, f.name)}", field=f.name)
         if not 0 <= self.normal_start <= 1:
             raise UserError(f"normal_start must be in [0, 1], got {self.normal_start}", field="normal_start")
         if not 0 <= int(self.stage1_sh_degree) <= 3:

@@ -191,9 +191,11 @@ def depth_smoothness_loss(depth_premult: torch.Tensor, alpha: torch.Tensor, targ
     loss and is interpolated from the textured rim instead.
     """
     ok = valid & (alpha > min_alpha)
+    if not bool(ok.any()):
+        return depth_premult.sum() * 0.0
     inv = alpha.clamp_min(1e-6) / depth_premult.clamp_min(1e-6)  # [H, W] 1/depth (1/m)
     t = torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0)  # [H, W, C]
-    scale = edge_rel * t[valid].abs().mean(0).clamp_min(1e-6) if bool(valid.any()) else torch.ones(t.shape[-1])
+    scale = edge_rel * t[valid].abs().mean(0).clamp_min(1e-6)  # [C]
     total = depth_premult.sum() * 0.0
     count = 0
     for dim in (0, 1):

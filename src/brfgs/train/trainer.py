@@ -689,8 +689,8 @@ class Trainer:
                     terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
                 if c.lambda_depth_smooth > 0:
                     terms.append(c.lambda_depth_smooth * depth_smoothness_loss(geo[..., 0], out.alpha, target, valid))
-                for t in terms:
-                    greg = t if greg is None else greg + t
+                if terms:
+                    greg = sum(terms) if greg is None else greg + sum(terms)
         if phase in ("stage1", "cir"):
             pred = composite_background(image, out.alpha, self.extra["bg_colors"])
             loss = stage1_loss(pred, target, valid, c.alpha_dssim)
