@@ -1,15 +1,12 @@
 """Initial surface fill covers what the cameras see; no opacity reset at the end of a phase."""
 
-from types import SimpleNamespace
-
 import numpy as np
 import torch
 
 from brfgs.model.densify import DensifyConfig, DensifyState
 from brfgs.model.gaussians import init_from_points, surface_fill
 from brfgs.model.optim import NamedAdam
-from brfgs.train.config import TrainConfig
-from brfgs.train.trainer import Trainer
+from brfgs.train.strategy import DensifyStrategy
 
 
 def _points():
@@ -36,17 +33,16 @@ def test_fill_with_cover_reaches_the_footprint_and_keeps_filter():
     assert (kept[:, 0] > 0).all() and kept.shape[0] >= 800  # about n_target nodes survive the filter
 
 
-def _fake_trainer(reset_every, refine_stop):
+def _strategy_and_model(reset_every, refine_stop):
     m = init_from_points(_points(), np.full((40, 3), 0.2), 4, init_opacity=0.9)
-    cfg = TrainConfig(densify=DensifyConfig(refine_start=10_000, refine_stop=refine_stop, reset_every=reset_every),
-                      max_gaussians_per_px=0.0)
-    return SimpleNamespace(cfg=cfg, model=m, opt=NamedAdam({}), dstate=DensifyState(m.n), meta={"extent_m": 5.0},
-                           gen=torch.Generator().manual_seed(0), progress=False, scene=SimpleNamespace(width=8, height=8))
+    strategy = DensifyStrategy(DensifyConfig(refine_start=10_000, refine_stop=refine_stop, reset_every=reset_every),
+                               max_gaussians_per_px=0.0, width=8, height=8, extent_m=5.0)
+    return strategy, m, NamedAdam({}), DensifyState(m.n), torch.Generator().manual_seed(0)
 
 
 def test_no_opacity_reset_in_the_last_quarter_of_a_phase():
-    t = _fake_trainer(reset_every=100, refine_stop=10_000)
-    Trainer._maybe_refine(t, 100, steps=100)  # the last step of a 100-step phase
-    assert float(t.model.opacities.detach().min()) > 0.8
-    Trainer._maybe_refine(t, 100, steps=1000)  # early in a long phase: 3DGS opacity reset
-    assert float(t.model.opacities.detach().max()) < 0.02
+    strategy, m, opt, state, gen = _strategy_and_model(reset_every=100, refine_stop=10_000)
+    strategy.after_step(m, opt, state, 100, 100, gen)  # the last step of a 100-step phase
+    assert float(m.opacities.detach().min()) > 0.8
+    strategy.after_step(m, opt, state, 100, 1000, gen)  # early in a long phase: 3DGS opacity reset
+    assert float(m.opacities.detach().max()) < 0.02

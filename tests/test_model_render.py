@@ -6,7 +6,8 @@ import torch
 from brfgs.brdf.head import HeadConfig, evaluate_head, init_head_params
 from brfgs.brdf.geometry import gaussian_normals
 from brfgs.model.gaussians import init_from_points
-from brfgs.model.render import centred_hybrid_latent, uncentre, view_dirs
+from brfgs.brdf.geometry import view_directions as view_dirs
+from brfgs.model.features import centred_hybrid_latent, uncentre
 
 
 def _random_model(n: int, latent_dim: int, seed: int):
@@ -79,7 +80,8 @@ def test_learned_shading_normals_replace_the_smallest_axis():
 def test_stage1_colors_sh_rest_terms():
     """Stage-1 colours: the view-independent colour plus Σ_j Y_j(ω_o)·rest_j (float64 reference)."""
     from brfgs.brdf.sh import sh_basis
-    from brfgs.model.render import Camera, stage1_colors
+    from brfgs.model.camera import Camera
+    from brfgs.model.features import stage1_colors
 
     rng = np.random.default_rng(3)
     m = init_from_points(rng.uniform(-5, 5, (12, 3)), rng.uniform(0, 1, (12, 3)), latent_dim=2)

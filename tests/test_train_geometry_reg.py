@@ -8,7 +8,9 @@ import torch
 from brfgs.brdf.geometry import gaussian_normals
 from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model.gaussians import init_from_points
-from brfgs.model.render import camera_depth_normals, camera_from_c2w, rasterize_features
+from brfgs.model.camera import camera_from_c2w
+from brfgs.model.features import camera_depth_normals
+from brfgs.model.render import rasterize_features
 from brfgs.train.losses import depth_normal_loss, flatten_loss, normals_from_depth
 
 

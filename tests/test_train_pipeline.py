@@ -11,9 +11,10 @@ import pytest
 import torch
 
 from brfgs.errors import UserError
-from brfgs.train.checkpoint import load
+from brfgs.model import TrainedModel, render
+from brfgs.model.io import load
 from brfgs.train.config import preset
-from brfgs.train.trainer import LoadedModel, Trainer, train
+from brfgs.train.trainer import Trainer, train
 from test_train_scene import make_plane_scene
 
 
@@ -48,11 +49,11 @@ def test_losses_decrease_in_both_stages_and_model_loads(scene, tmp_path):
         first, last = _halves(tr.history, phase)
         assert last < first, (phase, first, last)
     # self-describing model file: loads without the scene and renders a spectral cube
-    lm = LoadedModel(path)
+    lm = TrainedModel.load(path)
     assert lm.wavelengths_nm.shape == (16,)
     assert len(lm.cameras) == 13 and lm.scene["sun_zenith_deg"] == 35.0
-    r = lm.render(lm.cameras[0], backend="torch")
-    assert r["cube"].shape == (48, 64, 16) and np.isfinite(r["cube"]).all()
+    r = render(lm, lm.cameras[0], backend="torch")
+    assert r.cube.shape == (48, 64, 16) and np.isfinite(r.cube).all()
     tensors, meta = load(path)
     assert all(isinstance(v, torch.Tensor) for v in tensors.values())
     assert meta["config"]["variant"] == "brf" and meta["phase"] == "done"
@@ -62,10 +63,10 @@ def test_losses_decrease_in_both_stages_and_model_loads(scene, tmp_path):
     # stage 2 learned shading normals (unit-length at init = the smallest axes, facing up) and saved them
     from brfgs.brdf.geometry import gaussian_normals
 
-    learned = lm.model["normals"].detach()
+    learned = lm.gaussians["normals"].detach()
     up = torch.zeros_like(learned)
     up[:, 2] = 1.0
-    geometric = gaussian_normals(lm.model.quats, lm.model.scales, up).detach()
+    geometric = gaussian_normals(lm.gaussians.quats, lm.gaussians.scales, up).detach()
     assert learned.shape == geometric.shape
     assert 0 < float((learned - geometric).abs().max()) < 0.5
     run = json.loads((tmp_path / "run" / "run.json").read_text())
@@ -173,13 +174,13 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
         from dataclasses import replace
 
         p = train(scene, tmp_path / variant, replace(cfg, variant=variant), progress=False, from_stage1=s1, log=None)
-        lm = LoadedModel(p)
-        assert lm.meta["appearance"] == variant
+        lm = TrainedModel.load(p)
+        assert lm.appearance == variant and lm.meta["appearance"] == variant
         # same geometry as the stage-1 run
         t_full, _ = load(s1)
-        assert torch.equal(lm.model.means, t_full["param.means"])
-        r = lm.render(lm.cameras[1], backend="torch")
-        assert r["cube"].shape == (48, 64, 16) and np.isfinite(r["cube"]).all()
+        assert torch.equal(lm.gaussians.means, t_full["param.means"])
+        r = render(lm, lm.cameras[1], backend="torch")
+        assert r.cube.shape == (48, 64, 16) and np.isfinite(r.cube).all()
     # joint training: one phase, geometry moves together with the BRDF head
     tr = Trainer(scene, tmp_path / "joint", _cfg(stage1_steps=6, stage2_steps=6, joint=True), progress=False, log=None)
     tr.run()
@@ -190,12 +191,12 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
 
 def test_streaming_and_patch_training(scene, tmp_path):
     """Cubes not cached (cache_gib=0) and random 24x24 patches: trains and evaluates."""
-    from brfgs.train.evaluate import evaluate_run
+    from brfgs.analysis.evaluate import evaluate_run
 
     cfg = _cfg(stage1_steps=4, stage2_steps=4, cache_gib=0.0, patch_px=24)
     tr = Trainer(scene, tmp_path / "p", cfg, progress=False, log=None)
     tr.run()
-    assert not tr.store("full").cached and not tr.store("full").cache
+    assert not tr.images("full").cached and not tr.images("full").cache
     assert all(math.isfinite(h[2]) for h in tr.history)
     m = evaluate_run(tmp_path / "p", backend="torch", write_images=False, progress=False)
     assert m["against"]["truth"]["mean"]["psnr"] is not None
@@ -205,11 +206,11 @@ def test_stage1_view_dependent_colours_train_and_load(scene, tmp_path):
     tr = Trainer(scene, tmp_path / "run", _cfg(stage1_steps=20, stage2_steps=4, stage1_sh_degree=1), progress=False,
                  log=None)
     path = tr.run()
-    lm = LoadedModel(path)
-    rest = lm.model["colors_rest"].detach()
-    assert rest.shape == (lm.model.n, 3, lm.model["colors"].shape[1])
+    lm = TrainedModel.load(path)
+    rest = lm.gaussians["colors_rest"].detach()
+    assert rest.shape == (lm.n_gaussians, 3, lm.gaussians["colors"].shape[1])
     assert float(rest.abs().max()) > 0  # learned from zero
-    assert np.isfinite(lm.render(lm.cameras[0], backend="torch")["cube"]).all()
+    assert np.isfinite(render(lm, lm.cameras[0], backend="torch").cube).all()
 
 
 def test_surface_priors_train_and_are_validated(scene, tmp_path):
@@ -222,7 +223,7 @@ def test_surface_priors_train_and_are_validated(scene, tmp_path):
                      progress=False, log=None)
         tr.run()
         assert all(math.isfinite(h[2]) for h in tr.history)
-        runs[name] = tr.model.means.detach().clone()
+        runs[name] = tr.state.gaussians.means.detach().clone()
     assert runs["on"].shape != runs["off"].shape or float((runs["on"] - runs["off"]).abs().max()) > 0
     for field in ("lambda_depth_conc", "lambda_depth_smooth"):
         with pytest.raises(UserError, match=field):

@@ -12,39 +12,29 @@ The optimiser moments follow the row edits (new rows start at zero).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 from brfgs.model.gaussians import GaussianModel, inverse_sigmoid
 from brfgs.model.optim import NamedAdam
+from brfgs.render.geometry import quat_to_rotmat
 
 
 @dataclass
 class DensifyConfig:
-    refine_start: int = 300
-    refine_stop: int = 2500
-    refine_every: int = 100
-    reset_every: int = 1500
-    grow_grad2d: float = 0.0002
-    grow_scale3d: float = 0.01
-    prune_opacity: float = 0.005
-    prune_scale3d: float = 0.1
-    max_gaussians: int = 60_000
+    """Adaptive density control (see the module docstring); every field is a ``brfgs train``
+    option ``--densify-<field>``."""
 
-
-def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [N, 3, 3] from quaternions (w, x, y, z) [N, 4] (normalised here)."""
-    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        -1,
-    ).reshape(-1, 3, 3)
+    refine_start: int = field(default=300, metadata={"help": "First step that may clone, split or prune."})
+    refine_stop: int = field(default=2500, metadata={"help": "Last step that may (at most 3/4 of the phase)."})
+    refine_every: int = field(default=100, metadata={"help": "Steps between refinements."})
+    reset_every: int = field(default=1500, metadata={"help": "Steps between opacity resets (0 = never)."})
+    grow_grad2d: float = field(default=0.0002, metadata={"help": "Mean screen-space gradient (NDC) that grows a Gaussian."})
+    grow_scale3d: float = field(default=0.01, metadata={"help": "Clone below, split above this largest scale (x scene extent)."})
+    prune_opacity: float = field(default=0.005, metadata={"help": "Prune Gaussians below this opacity."})
+    prune_scale3d: float = field(default=0.1, metadata={"help": "Prune Gaussians larger than this (x scene extent) after a reset."})
+    max_gaussians: int = field(default=60_000, metadata={"help": "Never grow beyond this many Gaussians."})
 
 
 class DensifyState:

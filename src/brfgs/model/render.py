@@ -1,250 +1,189 @@
-"""Rendering a :class:`GaussianModel` for one camera: appearance head -> rasterizer -> decoder.
+"""The one render path: a trained model and a camera -> latent, reflectance cube, CIR, alpha,
+depth and normal maps.
 
-Stage 1 renders the per-Gaussian reflectance of the selected bands (``colors``).
-Stage 2 renders the latent z_k(omega_i, omega_o) of every Gaussian (paper eq. 12, via
-:func:`brfgs.brdf.head.evaluate_head`) to a latent image [H, W, d] and decodes each pixel
-with the spectral decoder D_phi (eq. 13) to a reflectance cube [H, W, B].
-The background (where accumulated opacity < 1) is a learned vector in the rendered space.
+:func:`render` is what evaluation, ``brfgs render``, ``brf``, ``products``, ``export``, the
+benchmarks and every later feature call. Per Gaussian it evaluates the appearance head for the
+sun (paper eq. 12; :mod:`brfgs.model.features`), rasterizes (premultiplied,
+:func:`brfgs.render.rasterize`), composites the learned background with (1 − α) and decodes
+each pixel with the spectral decoder D_φ (eq. 13). Training uses the same pieces
+(:func:`rasterize_features`, :func:`composite_background`, :func:`decode_image`) with gradients.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import torch
-from torch import nn
+from torch import Tensor
 
+from brfgs.brdf.geometry import gaussian_normals, view_directions
+from brfgs.data.cir import cir_composite
+from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
+from brfgs.render import RenderOutput, rasterize
+from brfgs.render.geometry import project_pinhole
+
+if TYPE_CHECKING:  # type only: trained.py imports this module
+    from brfgs.model.trained import TrainedModel
+
+# features(idx [n] long, omega_o [n, 3]) -> [n, C]: per-Gaussian features of the Gaussians kept
+FeaturesFn = Callable[[Tensor, Tensor], Tensor]
 
 
-@dataclass
-class Camera:
-    """One pinhole camera: world-to-camera ``viewmat`` [4,4] (OpenCV axes), ``K`` [3,3], size, centre [3]."""
-
-    name: str
-    viewmat: torch.Tensor
-    K: torch.Tensor
-    width: int
-    height: int
-    centre: torch.Tensor
-
-    def crop(self, x0: int, y0: int, w: int, h: int) -> "Camera":
-        """The camera seeing only the pixel window [x0, x0+w) x [y0, y0+h) (principal point shifted)."""
-        K = self.K.clone()
-        K[0, 2] -= x0
-        K[1, 2] -= y0
-        return Camera(self.name, self.viewmat, K, int(w), int(h), self.centre)
-
-
-def camera_from_c2w(name: str, c2w_gl: np.ndarray, K: np.ndarray, width: int, height: int) -> Camera:
-    """Camera from an OpenGL camera-to-world matrix (conventions.md) and intrinsics."""
-    from brfgs.data.cameras import viewmat_from_c2w
-
-    c2w = np.asarray(c2w_gl, np.float64)
-    vm = viewmat_from_c2w(c2w)
-    return Camera(
-        name,
-        torch.as_tensor(np.asarray(vm), dtype=torch.float32),
-        torch.as_tensor(np.asarray(K), dtype=torch.float32),
-        int(width),
-        int(height),
-        torch.as_tensor(c2w[:3, 3], dtype=torch.float32),
-    )
-
-
-class NeuralHead(nn.Module):
-    """MS-Splatting-style baseline: per-Gaussian feature f_k + view direction -> MLP -> latent.
-
-    z_k = f_k + MLP([f_k, omega_o, cos(phase)]) (last layer zero-initialised, so a fresh
-    head is view-independent). Shared across Gaussians; output in the autoencoder's latent space.
-    """
-
-    def __init__(self, dim: int, hidden: int = 64):
-        super().__init__()
-        self.dim = dim
-        self.hidden = hidden
-        self.net = nn.Sequential(nn.Linear(dim + 4, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU(), nn.Linear(hidden, dim))
-        nn.init.zeros_(self.net[-1].weight)
-        nn.init.zeros_(self.net[-1].bias)
-
-    def forward(self, feat: torch.Tensor, omega_o: torch.Tensor, omega_i: torch.Tensor) -> torch.Tensor:
-        cos_phase = (omega_o * omega_i).sum(-1, keepdim=True)  # [N,1]
-        return feat + self.net(torch.cat([feat, omega_o, cos_phase], -1))
-
-
-def view_dirs(means: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
-    """omega_o [N, 3]: unit vectors from each Gaussian toward the camera centre (conventions.md)."""
-    d = centre[None, :].to(means.dtype) - means
-    return d / d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-
-
-def gaussian_features(
+def rasterize_features(
     model: GaussianModel,
+    feats: Tensor,  # [N, C]
     cam: Camera,
-    sun_dir: torch.Tensor,
-    head_cfg,
-    neural: NeuralHead | None = None,
-    what: str = "latent",
-) -> torch.Tensor:
-    """Per-Gaussian features [N, C] to rasterize for ``cam``.
-
-    what="colors": stage-1 selected-band reflectance [N, k]; "latent": the appearance head
-    (hybrid/SH in latent space, SH on CIR for the "cir" variant, or the neural head).
-    """
-    if what == "colors":
-        return stage1_colors(model, cam)
-    means = model.means
-    omega_o = view_dirs(means, cam.centre)
-    if model.appearance == "neural":
-        assert neural is not None
-        return neural(model["feat"], omega_o, sun_dir.expand_as(omega_o))
-    from brfgs.brdf.head import evaluate_head
-
-    normals = None
-    if head_cfg.needs_normals:
-        from brfgs.brdf.geometry import shading_normals
-
-        normals = shading_normals(model.quats, model.scales, omega_o, model.params.get("normals"))
-    params = {k: v for k, v in model.params.items() if k in ("z_iso", "z_vol", "z_geo", "z_spec", "rho_raw", "sh", "color")}
-    if getattr(model, "centred", False) and head_cfg.kind == "hybrid":
-        return centred_hybrid_latent(model, head_cfg, normals, sun_dir, omega_o)
-    return evaluate_head(head_cfg, params, normals, sun_dir, omega_o)
+    backend: str = "auto",
+) -> RenderOutput:
+    """Rasterize ``feats`` for ``cam``: image [H, W, C] (premultiplied), alpha [H, W], depth, meta."""
+    return rasterize(model.means, model.quats, model.scales, model.opacities, feats, cam.viewmat, cam.K,
+                     cam.width, cam.height, backend=backend)
 
 
-def stage1_colors(model: GaussianModel, cam: Camera) -> torch.Tensor:
-    """Stage-1 reflectance of the selected bands [N, k] for ``cam``: ``colors`` plus, when the model
-    has ``colors_rest`` [N, s, k], the SH rest terms Σ_j Y_j(ω_o) · rest_j (degree 1–3, 3DGS style)."""
-    col = model["colors"]
-    if "colors_rest" not in model:
-        return col
-    from brfgs.brdf.sh import sh_basis
-
-    rest = model["colors_rest"]  # [N, s, k]
-    degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
-    basis = sh_basis(degree, view_dirs(model.means, cam.centre))[:, 1:]  # [N, s]
-    return col + (basis[:, :, None] * rest).sum(1)
-
-
-def camera_depth_normals(model: GaussianModel, cam: Camera) -> torch.Tensor:
-    """Per-Gaussian geometry features [N, 4] for ``cam``: camera-space depth (m along the optical
-    axis) and the unit normal (:func:`brfgs.brdf.geometry.gaussian_normals`, facing the camera)
-    in camera axes (OpenCV: x right, y down, z forward).
-
-    Rasterized and divided by alpha they give the expected depth and normal maps used by the
-    depth-normal consistency loss (:func:`brfgs.train.losses.depth_normal_loss`).
-    """
-    from brfgs.brdf.geometry import gaussian_normals
-
-    means = model.means
-    vm = cam.viewmat.to(means.dtype)  # [4, 4] world -> camera
-    n_world = gaussian_normals(model.quats, model.scales, view_dirs(means, cam.centre))  # [N, 3]
-    n_cam = n_world @ vm[:3, :3].T  # [N, 3]
-    return torch.cat([camera_depth(model, cam)[:, None], n_cam], -1)
-
-
-def camera_depth(model: GaussianModel, cam: Camera) -> torch.Tensor:
-    """Camera-space depth [N] (m along the optical axis) of every Gaussian centre for ``cam``."""
-    vm = cam.viewmat.to(model.means.dtype)  # [4, 4] world -> camera
-    return model.means @ vm[2, :3] + vm[2, 3]
-
-
-def camera_depth_squared(model: GaussianModel, cam: Camera) -> torch.Tensor:
-    """Per-Gaussian squared camera-space depth t² [N, 1] (m²) for ``cam``; rasterized next to the
-    depth of :func:`camera_depth_normals` it gives the ray-wise depth variance
-    (:func:`brfgs.train.losses.depth_concentration_loss`)."""
-    depth = camera_depth(model, cam)  # [N]
-    return (depth * depth)[:, None]
-
-
-def kernel_reference(model: GaussianModel, head_cfg, sun_dir: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Kernel values {"vol","geo","spec": [N]} of every Gaussian for a nadir view (omega_o = +z)."""
-    from brfgs.brdf.head import hybrid_kernels, roughness_from_raw
-
-    up = torch.zeros_like(model.means)
-    up[:, 2] = 1.0
-    normals = None
-    if head_cfg.needs_normals:
-        from brfgs.brdf.geometry import shading_normals
-
-        normals = shading_normals(model.quats, model.scales, up, model.params.get("normals"))
-    rho = roughness_from_raw(model["rho_raw"], head_cfg.rho_min) if "rho_raw" in model else None
-    return hybrid_kernels(normals, sun_dir.to(up.dtype), up, rho, head_cfg.components, head_cfg.normal_frame,
-                          min_cos=head_cfg.min_cos, f0=head_cfg.f0)
-
-
-def centred_hybrid_latent(model: GaussianModel, head_cfg, normals, sun_dir, omega_o) -> torch.Tensor:
-    """Eq. 12 in the centred (NBAR-like) parametrisation used during training, [N, d]:
-
-        z_k(omega_i, omega_o) = z'_iso + sum_j z_j (K_j(omega_i, omega_o) - K_j(omega_i, nadir))
-
-    z'_iso is then the latent of a nadir view. Same function class as eq. 12 (the Li-Sparse
-    kernel is about -1 at every geometry, which makes z_iso and z_geo nearly collinear in the
-    plain form and slows Adam); :func:`uncentre` converts back to eq. 12 for saving.
-    """
-    from brfgs.brdf.head import hybrid_kernels, roughness_from_raw
-
-    comps = head_cfg.components
-    rho = roughness_from_raw(model["rho_raw"], head_cfg.rho_min) if "rho_raw" in model else None
-    ks = hybrid_kernels(normals, sun_dir.to(omega_o.dtype), omega_o, rho, comps, head_cfg.normal_frame,
-                        min_cos=head_cfg.min_cos, f0=head_cfg.f0)
-    ref = kernel_reference(model, head_cfg, sun_dir)
-    out = model["z_iso"] if "iso" in comps else None
-    for c in ("vol", "geo", "spec"):
-        if c not in comps:
-            continue
-        term = model[f"z_{c}"] * (ks[c] - ref[c]).unsqueeze(-1)
-        out = term if out is None else out + term
-    return out
-
-
-@torch.no_grad()
-def uncentre(model: GaussianModel, head_cfg, sun_dir: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Head tensors in the plain eq. 12 form: z_iso = z'_iso - sum_j z_j K_j(omega_i, nadir).
-
-    Exact for the model's current geometry (the spec reference depends on n_k). Without the
-    "iso" component the model is trained uncentred, so nothing changes.
-    """
-    out = {k: v.detach().clone() for k, v in model.params.items()}
-    if "iso" not in head_cfg.components:
-        return out
-    ref = kernel_reference(model, head_cfg, sun_dir)
-    for c in ("vol", "geo", "spec"):
-        if c in head_cfg.components:
-            out["z_iso"] -= model[f"z_{c}"].detach() * ref[c].unsqueeze(-1)
-    return out
-
-
-def rasterize_features(model: GaussianModel, feats: torch.Tensor, cam: Camera, backend: str = "auto"):
-    """Rasterize ``feats [N, C]`` for ``cam``; returns the rasterizer's output (image [H,W,C], alpha, meta)."""
-    from brfgs.render import rasterize
-
-    return rasterize(
-        model.means,
-        model.quats,
-        model.scales,
-        model.opacities,
-        feats,
-        cam.viewmat,
-        cam.K,
-        cam.width,
-        cam.height,
-        backend=backend,
-    )
-
-
-def composite_background(image: torch.Tensor, alpha: torch.Tensor, bg: torch.Tensor | None) -> torch.Tensor:
-    """image + (1 - alpha) * bg for a premultiplied render [H, W, C]."""
+def composite_background(
+    image: Tensor,  # [H, W, C] premultiplied
+    alpha: Tensor,  # [H, W]
+    bg: Tensor | None,  # [C]
+) -> Tensor:  # [H, W, C]
+    """image + (1 - alpha) * bg for a premultiplied render."""
     if bg is None:
         return image
     return image + (1.0 - alpha)[..., None] * bg
 
 
-def decode_image(decoder, latent: torch.Tensor, chunk: int = 1 << 16) -> torch.Tensor:
-    """Decode a latent image [H, W, d] to reflectance [H, W, B] pixel by pixel (eq. 13)."""
-    h, w, d = latent.shape
+def decode_image(decoder, latent: Tensor, chunk: int = 1 << 16) -> Tensor:
+    """Decode latent vectors [..., d] to reflectance [..., B] pixel by pixel (eq. 13), in chunks
+    of ``chunk`` vectors (the decoder is per pixel: chunking does not change the result)."""
+    shape, d = latent.shape[:-1], latent.shape[-1]
     flat = latent.reshape(-1, d)
     if flat.shape[0] <= chunk:
-        return decoder.decode(flat).reshape(h, w, -1)
+        return decoder.decode(flat).reshape(*shape, -1)
     parts = [decoder.decode(flat[i : i + chunk]) for i in range(0, flat.shape[0], chunk)]
-    return torch.cat(parts, 0).reshape(h, w, -1)
+    return torch.cat(parts, 0).reshape(*shape, -1)
+
+
+def frustum_subset(
+    means: Tensor,  # [N, 3] m
+    max_scale: Tensor,  # [N] m, largest standard deviation
+    cam: Camera,
+    margin_sigma: float = 3.0,
+) -> Tensor:  # [n] long
+    """Indices of Gaussians that can touch the image: in front of the camera and within the image
+    grown by ``margin_sigma`` × their largest scale (a superset of what the rasterizer keeps).
+    Gaussians straddling the camera plane cannot be projected reliably; 3DGS drops them too."""
+    uv, z = project_pinhole(means, cam.viewmat.to(means.dtype), cam.K.to(means.dtype))  # [N, 2], [N]
+    zs = z.clamp_min(1e-6)
+    r = margin_sigma * max_scale
+    ru = cam.K[0, 0] * r / zs + 2.0
+    rv = cam.K[1, 1] * r / zs + 2.0
+    u, v = uv[:, 0], uv[:, 1]
+    ok = (z > 0.01) & (u + ru >= 0) & (u - ru <= cam.width) & (v + rv >= 0) & (v - rv <= cam.height)
+    return torch.nonzero(ok).squeeze(1)
+
+
+@dataclass
+class RenderedView:
+    """One rendered view (numpy planes unless said otherwise).
+
+    image: raw premultiplied features [H, W, C] (torch); latent: background-composited latent
+    [H, W, d] (None for custom features or the CIR variant); cube: reflectance [H, W, B] (None
+    unless decoded); cir: CIR composite [H, W, 3] in [0, 1]-ish (None unless decoded, or always for
+    the CIR variant); alpha [H, W]; depth [H, W] (m along the optical axis, 0 where nothing);
+    normal [H, W, 3] (unit, world, facing the camera, 0 where α = 0; None unless asked).
+    """
+
+    image: Tensor
+    alpha: np.ndarray
+    depth: np.ndarray
+    latent: np.ndarray | None = None
+    cube: np.ndarray | None = None
+    cir: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    timings_s: dict = field(default_factory=dict)
+
+
+def _rasterize_subset(model: "TrainedModel", cam: Camera, features: FeaturesFn, want_normals: bool, cull: bool,
+                      backend: str) -> RenderOutput:
+    """Rasterize ``features`` of the Gaussians that can touch ``cam`` (all when not ``cull``)."""
+    f = model.frozen()
+    means = f["means"]
+    idx = frustum_subset(means, f["max_scale"], cam) if cull else torch.arange(means.shape[0])
+    omega_o = view_directions(means[idx], cam.centre)  # [n, 3]
+    feats = features(idx, omega_o).to(means.dtype).contiguous()  # [n, C]
+    normals = gaussian_normals(f["quats"][idx], f["scales"][idx], omega_o).contiguous() if want_normals else None
+    if idx.numel() == 0:
+        z = torch.zeros(cam.height, cam.width)
+        return RenderOutput(torch.zeros(cam.height, cam.width, feats.shape[1]), z, z.clone(),
+                            torch.zeros(cam.height, cam.width, 3) if want_normals else None, {"backend": "none"})
+    return rasterize(means[idx].contiguous(), f["quats"][idx].contiguous(), f["scales"][idx].contiguous(),
+                     f["opacities"][idx].contiguous(), feats, cam.viewmat, cam.K, cam.width, cam.height,
+                     backend=backend, normals=normals)
+
+
+def _unit_normals(normal: Tensor | None) -> np.ndarray | None:
+    """Blended normals [H, W, 3] scaled to unit length (0 where nothing was hit)."""
+    if normal is None:
+        return None
+    n = normal.numpy().astype(np.float64)
+    nn = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(nn > 1e-8, n / np.maximum(nn, 1e-12), 0.0).astype(np.float32)
+
+
+def _decode_hits(model: "TrainedModel", latent: Tensor, alpha: Tensor) -> np.ndarray:
+    """Decoded cube [H, W, B]; pixels showing only the background share one decoded spectrum."""
+    bg = model.bg_latent
+    hit = alpha > 0
+    if bg is None or bool(hit.all()):
+        return decode_image(model.decoder, latent).numpy()
+    bg_spec = decode_image(model.decoder, bg.to(latent.dtype)[None])[0].numpy()  # [B]
+    cube = np.broadcast_to(bg_spec, latent.shape[:2] + bg_spec.shape).copy()
+    if bool(hit.any()):
+        cube[hit.numpy()] = decode_image(model.decoder, latent[hit]).numpy()
+    return cube
+
+
+@torch.no_grad()
+def render(
+    model: "TrainedModel",
+    cam: Camera,
+    *,
+    sun_zenith_deg: float | None = None,
+    sun_azimuth_deg: float | None = None,
+    features: FeaturesFn | None = None,
+    decode: bool = True,
+    normals: bool = False,
+    cull: bool = True,
+    backend: str = "auto",
+) -> RenderedView:
+    """Render ``model`` from ``cam`` under a sun (default: the acquisition's).
+
+    With ``features`` None the appearance head's latent is rendered, the learned background
+    composited, and (``decode``) every pixel decoded to reflectance and the CIR composite formed;
+    the CIR variant renders its CIR colours directly. With ``features(idx, omega_o) -> [n, C]``
+    any per-Gaussian quantity (kernel contributions, NBAR latents, ...) is rasterized instead
+    and returned raw in ``image``. ``cull`` drops Gaussians that cannot touch the image first
+    (same image, less work).
+    """
+    t0 = time.perf_counter()
+    omega_i = model.sun_direction(sun_zenith_deg, sun_azimuth_deg)  # [3]
+    custom = features is not None
+    if not custom:
+        def features(idx: Tensor, omega_o: Tensor) -> Tensor:
+            return model.gaussian_latent(omega_i, omega_o, idx)
+    out = _rasterize_subset(model, cam, features, normals, cull, backend)
+    t1 = time.perf_counter()
+    rv = RenderedView(image=out.image, alpha=out.alpha.numpy(), depth=out.depth.numpy(), normal=_unit_normals(out.normal))
+    if not custom and model.spectral:
+        latent = composite_background(out.image, out.alpha, model.bg_latent)  # [H, W, d]
+        rv.latent = latent.numpy().astype(np.float32)
+        if decode:
+            rv.cube = _decode_hits(model, latent, out.alpha)
+            rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
+    elif not custom:  # CIR variant: SH colours on the CIR composite
+        rv.cir = composite_background(out.image, out.alpha, model.extra.get("bg_colors")).clamp(0, 1).numpy()
+    rv.timings_s = {"rasterize_s": t1 - t0, "decode_s": time.perf_counter() - t1, "total_s": time.perf_counter() - t0}
+    return rv

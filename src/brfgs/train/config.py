@@ -1,4 +1,4 @@
-"""Training options (one dataclass the CLI exposes) and presets.
+"""Training options (one dataclass; the CLI's options are generated from it) and presets.
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene), ``paper`` (GPU-scale, 3DGS-like
 30k-step schedule), ``tiny`` (tests: a few steps).
@@ -7,6 +7,8 @@ Presets: ``fast`` (CPU, minutes for a 128-px scene), ``paper`` (GPU-scale, 3DGS-
 from __future__ import annotations
 
 import json
+import math
+import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from brfgs.errors import UserError
@@ -15,114 +17,94 @@ from brfgs.model.densify import DensifyConfig
 VARIANTS = ("brf", "sh", "neural", "cir")
 
 
+def _opt(default, help: str, flag: str | None = None):
+    """A dataclass field with its command-line help (and an explicit flag, e.g. "--joint/--decoupled")."""
+    meta = {"help": help} if flag is None else {"help": help, "flag": flag}
+    if isinstance(default, (list, dict, DensifyConfig)):
+        return field(default_factory=lambda: replace(default) if isinstance(default, DensifyConfig) else default,
+                     metadata=meta)
+    return field(default=default, metadata=meta)
+
+
 @dataclass
 class TrainConfig:
-    """Every option of ``brfgs train`` (stored in run folders and checkpoints).
+    """Every option of ``brfgs train`` (stored in run folders and checkpoints as config.json).
 
-    Attributes (units in names):
-        variant: "brf" (BRF-GS, hybrid kernels), "sh" (SH degree 3 in the latent space),
-            "neural" (per-Gaussian feature + view direction -> MLP, MS-Splatting style),
-            "cir" (3DGS with SH degree 3 on CIR composites only; no spectra).
-        components: hybrid kernel terms used by "brf" (Table 3 ablations).
-        joint: train geometry and reflectance at once on all bands (Table 4 ablation).
-        band_strategy/top: band selection for initialisation (SfM) and stage 1 (brfgs.bands).
-        stage1_cir_bands: stage 1 also fits the CIR bands (green, red, NIR) next to the selected
-            ones; they carry the visible-band texture (not in the paper, which fits the selected bands only).
-        poses: "known" | "sfm" | "auto" (brfgs.init).
-        downscale: integer area-average factor applied when reading cubes.
-        value_range: plausible reflectance range of the cubes (brfgs.data.read_scene).
-        latent_dim: d of the spectral autoencoder (<= 32).
-        ae_steps/ae_batch/ae_max_pixels: its Adam steps, batch and the training pixels sampled
-            (2400 steps: half the spectral angle of 800 on the truth of the 128² testsite,
-            0.0077 vs 0.0150 rad, for about a minute more; docs/results.md, Session 4).
-        stage1_steps/stage2_steps: optimisation steps; joint uses their sum.
-        alpha_dssim: alpha of eq. 24; beta_cos: beta of eq. 25.
-        lambda_normal: weight of the depth-normal consistency loss in the phases that train
-            geometry (brfgs.train.losses.depth_normal_loss; 0 = off), from the fraction
-            normal_start of the phase on; lambda_flat: weight of the flatness loss
-            (smallest/largest scale). Both give the specular kernel usable normals n_k on flat,
-            textureless surfaces (not in the paper, which leaves n_k to the photometric loss).
-        lambda_depth_conc: weight of the ray-wise depth concentration loss (surface prior, as 2DGS's
-            distortion loss; brfgs.train.losses.depth_concentration_loss); lambda_depth_smooth: weight
-            of the edge-aware second-order smoothness of the rendered inverse depth
-            (brfgs.train.losses.depth_smoothness_loss). Both from normal_start on, 0 = off.
-        lr_*: Adam learning rates (lr_means is multiplied by the scene extent in metres).
-            lr_spec (z_spec) is 20x lr_latent: a glint needs a specular latent an order of
-            magnitude larger than the others (K_Cook carries F0 = 0.04), and its few glinting
-            pixels give it few steps to get there (docs/results.md, Session 4).
-        init_opacity: opacity of the initial Gaussians.
-        init_fill_points: add about this many Gaussians on a 2.5-D surface interpolated through
-            the sparse points (0 = sparse points only, as in 3DGS); helps short CPU schedules.
-        max_gaussians_per_px: cap densification at this many Gaussians per image pixel
-            (0 = only densify.max_gaussians); keeps CPU steps fast.
-        centred_kernels: train the hybrid head in the centred form z'_iso + sum_j z_j (K_j - K_j(nadir))
-            (same function class as eq. 12; saved in eq. 12 form).
-        finetune_decoder: also optimise the decoder in stage 2 (lr_decoder).
-        patch_px: train on random patch_px x patch_px windows when an image has more than
-            patch_px**2 pixels (0 = always whole images).
-        stage2_rays: stage 2 decodes and scores this many random pixels of each rendered view
-            (ray sampling; 0 = all); the joint phase uses square patches of this many pixels.
-        cache_gib: keep training cubes in memory up to this size, else read them per step.
-        checkpoint_every: steps between checkpoints (also at each stage's end and on Ctrl-C).
-        backend: rasterizer backend ("auto" | "torch" | "cpu" | "cuda").
-        threads: torch threads (0 = leave torch's default).
-        seed: every random choice (view order, patches, splits of Gaussians, autoencoder).
+    Each field's help is its ``--option`` help (``brfgs train --help``), generated from this class:
+    the command line never lists the options by hand. Beyond the paper (each switchable, measured
+    in docs/results.md): stage 1 on the CIR bands too, the depth-normal / flatness / depth
+    smoothness priors, SH-3 stage-1 colours, learned shading normals, ``lr_spec``.
     """
 
-    preset: str = "fast"
-    variant: str = "brf"
-    components: tuple[str, ...] = ("iso", "vol", "geo", "spec")
-    joint: bool = False
-    band_strategy: str = "efc-top3"
-    top: int = 3
-    stage1_cir_bands: bool = True
-    poses: str = "auto"
-    downscale: int = 1
-    value_range: tuple[float, float] = (-0.5, 10.0)
-    latent_dim: int = 16
-    ae_steps: int = 2400
-    ae_batch: int = 1024
-    ae_max_pixels: int = 100_000
-    stage1_steps: int = 3000
-    stage2_steps: int = 1500
-    alpha_dssim: float = 0.2
-    beta_cos: float = 0.5
-    lambda_normal: float = 0.05
-    normal_start: float = 0.3
-    lambda_flat: float = 0.01
-    lambda_depth_conc: float = 0.0
-    lambda_depth_smooth: float = 50.0
-    learn_normals: bool = True
-    lambda_normal_smooth: float = 0.1
-    stage1_sh_degree: int = 3
-    lr_normals: float = 2e-3
-    lr_means: float = 1.6e-4
-    lr_means_final: float = 1.6e-6
-    lr_scales: float = 5e-3
-    lr_quats: float = 1e-3
-    lr_opacity: float = 5e-2
-    lr_colors: float = 5e-3
-    lr_latent: float = 1e-2
-    lr_spec: float = 0.2
-    lr_rho: float = 1e-2
-    lr_neural: float = 2e-3
-    lr_decoder: float = 1e-4
-    lr_background: float = 1e-2
-    finetune_decoder: bool = False
-    centred_kernels: bool = True
-    init_opacity: float = 0.1
-    init_fill_points: int = 10_000
-    max_gaussians_per_px: float = 3.0
-    densify: DensifyConfig = field(default_factory=DensifyConfig)
-    patch_px: int = 256
-    stage2_rays: int = 2048
-    cache_gib: float = 4.0
-    checkpoint_every: int = 500
-    log_every: int = 10
-    backend: str = "auto"
-    threads: int = 0
-    seed: int = 0
-    split_seed: int = 0
+    preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes), paper (GPU-scale), tiny (tests).")
+    variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "
+                        "feature + view direction -> MLP), cir (3DGS with SH-3 on CIR composites, no spectra).")
+    components: tuple[str, ...] = _opt(("iso", "vol", "geo", "spec"), "Hybrid kernel terms of brf, e.g. iso,vol,geo,spec "
+                                       "(Table 3 ablations).")
+    joint: bool = _opt(False, "Train geometry and reflectance at once on all bands (Table 4 ablation).", "--joint/--decoupled")
+    band_strategy: str = _opt("efc-top3", "Band selection for initialisation (SfM) and stage 1 (brfgs select-bands).")
+    top: int = _opt(3, "Number of bands the strategy selects.")
+    stage1_cir_bands: bool = _opt(True, "Stage 1 also fits the CIR bands (green, red, NIR), which carry the visible "
+                                  "texture (not in the paper, which fits the selected bands only).",
+                                  "--stage1-cir-bands/--stage1-selected-bands-only")
+    poses: str = _opt("auto", "Camera poses: known | sfm | auto (brfgs init).")
+    downscale: int = _opt(1, "Integer area-average factor applied when reading cubes.")
+    value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes.")
+    latent_dim: int = _opt(16, "Latent size d of the spectral autoencoder (<= 32).")
+    ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400: half the spectral angle of 800 on the truth of "
+                         "the 128² testsite for about a minute more; docs/results.md, Session 4).")
+    ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
+    ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
+    stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
+    stage2_steps: int = _opt(1500, "Stage-2 (BRDF) steps.")
+    alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
+    beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
+    lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
+                                "not in the paper).")
+    normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
+    lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
+    lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "
+                                    "sharper depth maps, lower PSNR; 0 = off).")
+    lambda_depth_smooth: float = _opt(50.0, "Weight of the edge-aware second-order smoothness of the rendered inverse "
+                                      "depth while geometry trains (0 = off).")
+    learn_normals: bool = _opt(True, "Learn per-Gaussian shading normals in stage 2, or use the smallest axis (paper).",
+                               "--learn-normals/--geometric-normals")
+    lambda_normal_smooth: float = _opt(0.1, "Weight of the stage-2 smoothness loss of the learned normals over 8 "
+                                       "neighbours (0 = off).")
+    stage1_sh_degree: int = _opt(3, "View dependence of the stage-1 colours: SH degree 0 (none) to 3 (as 3DGS).")
+    lr_normals: float = _opt(2e-3, "Adam learning rate of the learned shading normals.")
+    lr_means: float = _opt(1.6e-4, "Initial learning rate of the means (x scene extent in m).")
+    lr_means_final: float = _opt(1.6e-6, "Final learning rate of the means (x scene extent in m).")
+    lr_scales: float = _opt(5e-3, "Learning rate of the log-scales.")
+    lr_quats: float = _opt(1e-3, "Learning rate of the rotations.")
+    lr_opacity: float = _opt(5e-2, "Learning rate of the opacity logits.")
+    lr_colors: float = _opt(5e-3, "Learning rate of the stage-1 colours (SH rest terms: /20) and the CIR SH.")
+    lr_latent: float = _opt(1e-2, "Learning rate of the latent kernel weights (z_iso, z_vol, z_geo), SH and features.")
+    lr_spec: float = _opt(0.2, "Learning rate of the specular latent z_spec (20x lr_latent: a glint needs a latent an "
+                          "order of magnitude larger, seen in few views; docs/results.md, Session 4).")
+    lr_rho: float = _opt(1e-2, "Learning rate of the roughness.")
+    lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
+    lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")
+    lr_background: float = _opt(1e-2, "Learning rate of the learned backgrounds.")
+    finetune_decoder: bool = _opt(False, "Also optimise the spectral decoder in stage 2.",
+                                  "--finetune-decoder/--frozen-decoder")
+    centred_kernels: bool = _opt(True, "Train the hybrid head in the centred form z'_iso + sum_j z_j (K_j - K_j(nadir)) "
+                                 "(same function class as eq. 12; saved in eq. 12 form).")
+    init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
+    init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
+                                 "(0 = sparse points only, as 3DGS).")
+    max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
+    densify: DensifyConfig = _opt(DensifyConfig(), "Adaptive density control (brfgs.model.densify).")
+    patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
+    stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
+                            "phase uses square patches of this many pixels.")
+    cache_gib: float = _opt(4.0, "Keep training cubes in memory up to this size (GiB), else read them per step.")
+    checkpoint_every: int = _opt(500, "Steps between checkpoints (also at each stage's end and on Ctrl-C).")
+    log_every: int = _opt(10, "Steps between rows of train_log.csv.")
+    backend: str = _opt("auto", "Rasterizer backend: auto | torch | cpu | cuda.")
+    threads: int = _opt(0, "CPU threads (0 = leave the default: all).")
+    seed: int = _opt(0, "Seed of every random choice (view order, patches, splits of Gaussians, autoencoder).")
+    split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split.")
 
     def validate(self) -> "TrainConfig":
         if self.variant not in VARIANTS:
@@ -163,18 +145,24 @@ class TrainConfig:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "TrainConfig":
-        known = {f.name for f in fields(cls)}
-        unknown = set(d) - known
-        if unknown:
-            raise UserError(f"unknown training options {sorted(unknown)}", field="config")
+    def from_dict(cls, d: dict, source: str | None = None) -> "TrainConfig":
+        """Options from a dict as :meth:`to_dict` writes it (config.json, model files); UserError
+        naming ``source`` and the field for unknown options or values of the wrong type."""
         d = dict(d)
-        if "densify" in d and isinstance(d["densify"], dict):
-            d["densify"] = DensifyConfig(**d["densify"])
-        if "components" in d:
-            d["components"] = tuple(d["components"])
-        if "value_range" in d:
-            d["value_range"] = tuple(d["value_range"])
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise UserError(f"unknown training options {sorted(unknown)}", file=source, field="config")
+        if isinstance(d.get("densify"), dict):
+            dd = d["densify"]
+            bad = set(dd) - {f.name for f in fields(DensifyConfig)}
+            if bad:
+                raise UserError(f"unknown densification options {sorted(bad)}", file=source, field="densify")
+            _check_types(DensifyConfig, dd, source, "densify.")
+            d["densify"] = DensifyConfig(**dd)
+        for key in ("components", "value_range"):
+            if isinstance(d.get(key), list):
+                d[key] = tuple(d[key])
+        _check_types(cls, d, source)
         return cls(**d)
 
     @property
@@ -182,43 +170,49 @@ class TrainConfig:
         return self.stage1_steps + self.stage2_steps
 
 
+def _check_types(cls, d: dict, source: str | None, prefix: str = "") -> None:
+    """UserError unless every value of ``d`` has the type of the field of ``cls`` it sets."""
+    hints = typing.get_type_hints(cls)
+    for name, v in d.items():
+        tp = hints[name]
+        if typing.get_origin(tp) is tuple:
+            item = typing.get_args(tp)[0]
+            ok = isinstance(v, tuple) and all(isinstance(x, item) or (item is float and isinstance(x, int))
+                                              for x in v) and not any(isinstance(x, bool) for x in v)
+        elif tp is float:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        elif tp is int:
+            ok = isinstance(v, int) and not isinstance(v, bool)
+        else:
+            ok = isinstance(v, tp)
+        if not ok:
+            raise UserError(f"expected {getattr(tp, '__name__', str(tp))}, got {v!r}", file=source, field=prefix + name)
+
+
+# Each preset: the options that differ from the dataclass defaults (``fast``: none).
+PRESETS: dict[str, dict] = {
+    "fast": {},
+    "paper": dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000, stage2_steps=30_000,
+                  densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
+                               max_gaussians=3_000_000),
+                  checkpoint_every=2000, patch_px=0, stage2_rays=0, init_fill_points=0, max_gaussians_per_px=0.0,
+                  stage1_cir_bands=False),
+    "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
+                 init_fill_points=500,
+                 densify=dict(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000, max_gaussians=5000),
+                 checkpoint_every=10, log_every=1, backend="torch"),
+}
+
+
 def preset(name: str, **overrides) -> TrainConfig:
-    """A :class:`TrainConfig` from a named preset with keyword overrides."""
-    if name == "fast":
-        cfg = TrainConfig(preset="fast")
-    elif name == "paper":
-        cfg = TrainConfig(
-            preset="paper",
-            ae_steps=5000,
-            ae_batch=4096,
-            ae_max_pixels=1_000_000,
-            stage1_steps=30_000,
-            stage2_steps=30_000,
-            densify=DensifyConfig(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000, max_gaussians=3_000_000),
-            checkpoint_every=2000,
-            patch_px=0,
-            stage2_rays=0,
-            init_fill_points=0,
-            max_gaussians_per_px=0.0,
-            stage1_cir_bands=False,
-        )
-    elif name == "tiny":
-        cfg = TrainConfig(
-            preset="tiny",
-            ae_steps=60,
-            ae_batch=256,
-            ae_max_pixels=5000,
-            stage1_steps=30,
-            stage2_steps=30,
-            latent_dim=4,
-            init_fill_points=500,
-            densify=DensifyConfig(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000, max_gaussians=5000),
-            checkpoint_every=10,
-            log_every=1,
-            backend="torch",
-        )
-    else:
-        raise UserError(f"unknown preset {name!r}; choose fast, paper or tiny", field="preset")
-    if "densify" in overrides and isinstance(overrides["densify"], dict):
-        overrides["densify"] = replace(cfg.densify, **overrides["densify"])
-    return replace(cfg, **overrides).validate()
+    """A :class:`TrainConfig` from a named preset with keyword overrides (``densify`` may be a
+    dict of the fields to change)."""
+    if name not in PRESETS:
+        raise UserError(f"unknown preset {name!r}; choose {', '.join(PRESETS)}", field="preset")
+    cfg = TrainConfig(preset=name)
+    for changes in (PRESETS[name], overrides):
+        changes = dict(changes)
+        if isinstance(changes.get("densify"), dict):
+            changes["densify"] = replace(cfg.densify, **changes["densify"])
+        cfg = replace(cfg, **changes)
+    return cfg.validate()

@@ -15,55 +15,29 @@ from pathlib import Path
 
 import numpy as np
 
+from tqdm import tqdm
+
 from brfgs.analysis import metrics as M
+from brfgs.analysis.plots import save_cir_comparison
+from brfgs.data import read_scene
+from brfgs.data.cir import cir_composite
+from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
-from brfgs.train.trainer import MODEL_FILE, LoadedModel
-
-
-def load_truth_cube(scene, name: str) -> np.ndarray | None:
-    """Clean truth cube [H, W, B] of frame ``name`` (scene bands, ROI and downscale applied), or None."""
-    return scene.load_truth(scene.frame_index(name))
-
-
-def _save_cir_png(path: Path, ref: np.ndarray, pred: np.ndarray, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    err = np.abs(np.nan_to_num(pred) - np.nan_to_num(ref)).mean(-1)
-    fig, ax = plt.subplots(1, 3, figsize=(10, 3.6))
-    ax[0].imshow(np.nan_to_num(np.clip(ref, 0, 1)))
-    ax[0].set_title("reference (CIR)")
-    ax[1].imshow(np.clip(pred, 0, 1))
-    ax[1].set_title("render (CIR)")
-    im = ax[2].imshow(err, cmap="magma", vmin=0, vmax=max(float(np.nanpercentile(err, 99)), 1e-3))
-    ax[2].set_title("|error| (mean of CIR channels)")
-    fig.colorbar(im, ax=ax[2], fraction=0.046)
-    for a in ax:
-        a.axis("off")
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+from brfgs.model import MODEL_FILE, TrainedModel, render
 
 
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str = "auto",
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE) -> dict:
     """Evaluate the trained model of ``out_dir`` on its test views; returns the metrics dict."""
-    from brfgs.data import read_scene
-    from brfgs.data.cir import cir_composite
-
     out = Path(out_dir)
     mpath = out / model_file
     if not mpath.is_file():
         raise UserError(f"no {model_file}: train first (brfgs train SCENE {out})", file=out)
-    lm = LoadedModel(mpath)
-    cfg = lm.cfg
+    lm = TrainedModel.load(mpath)
+    cfg = lm.config
     root = Path(scene_path) if scene_path else Path(lm.scene["root"])
-    scene = read_scene(root, downscale=cfg.downscale, split_seed=cfg.split_seed,
-                       value_range=tuple(cfg.value_range))
+    scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
+                       value_range=tuple(cfg["value_range"]))
     if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
         raise UserError("the scene's wavelengths differ from the model's", file=root / "transforms.json", field="wavelengths_nm")
     names = [f.name for f in scene.frames]
@@ -78,41 +52,37 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     t0 = time.perf_counter()
     it = test
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(test, desc="evaluate", leave=False)
     for i in it:
         name = scene.frames[i].name
-        r = lm.render(lm.cameras[i], backend)
+        r = render(lm, lm.cameras[i], backend=backend)
         obs = scene.load_image(i)
         valid = np.isfinite(obs).all(-1)
         refs = {"observed": (obs, valid)}
         if has_truth:
-            tr = load_truth_cube(scene, name)
+            tr = scene.load_truth(i)
             if tr is not None:
                 refs["truth"] = (tr, np.isfinite(tr).all(-1))
         for against, (ref, ok) in refs.items():
             ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)
-            m = M.image_metrics(r["cube"], ref, r["cir"], ref_cir, ok, spectral=lm.spectral,
+            m = M.image_metrics(r.cube, ref, r.cir, ref_cir, ok, spectral=lm.spectral,
                                 spectral_reason="RGB-style model trained on CIR composites: no spectra (SAM '-')")
             m = {"name": name, **m}
             views[against].append(m)
             if write_images:
-                _save_cir_png(out / "eval" / "cir" / f"{name}_vs_{against}.png", ref_cir, r["cir"],
+                save_cir_comparison(out / "eval" / "cir" / f"{name}_vs_{against}.png", ref_cir, r.cir,
                               f"{scene.name} {name} [{lm.meta['appearance']}] vs {against}: PSNR {m['psnr'] or float('nan'):.2f} dB"
                               + (f", SAM {m['sam']:.4f} rad" if m.get("sam") is not None else ""))
-        if write_images and r["cube"] is not None:
-            from brfgs.data.cube_io import write_envi
-
-            write_envi(out / "eval" / "renders" / f"{name}.hdr", r["cube"], scene.wavelengths_nm, scene.fwhm_nm)
+        if write_images and r.cube is not None:
+            write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm)
     result = {
         "scene": scene.name,
         "scene_root": str(root.resolve()),
         "model": _model_name(lm),
         "split": scene.split_record(),
         "settings": {
-            "config": cfg.to_dict(),
-            "n_gaussians": lm.model.n,
+            "config": cfg,
+            "n_gaussians": lm.n_gaussians,
             "bands_used": len(scene.wavelengths_nm),
             "cir_indices": list(lm.cir_indices),
             "cir_wavelengths_nm": [float(scene.wavelengths_nm[j]) for j in lm.cir_indices],
@@ -132,13 +102,14 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     return result
 
 
-def _model_name(lm: LoadedModel) -> str:
-    c = lm.cfg
-    if c.variant == "brf":
-        name = "BRF-GS" if tuple(c.components) == ("iso", "vol", "geo", "spec") else "BRF-GS[" + "+".join(c.components) + "]"
-        return name + (" (joint)" if c.joint else "")
-    return {"sh": "SH-3 (latent)", "neural": "Neural decoder (MS-Splatting-style)", "cir": "3DGS (CIR)"}[c.variant] + (
-        " (joint)" if c.joint and c.variant != "cir" else "")
+def _model_name(lm: TrainedModel) -> str:
+    c = lm.config
+    if c["variant"] == "brf":
+        comps = tuple(c["components"])
+        name = "BRF-GS" if comps == ("iso", "vol", "geo", "spec") else "BRF-GS[" + "+".join(comps) + "]"
+        return name + (" (joint)" if c["joint"] else "")
+    return {"sh": "SH-3 (latent)", "neural": "Neural decoder (MS-Splatting-style)", "cir": "3DGS (CIR)"}[c["variant"]] + (
+        " (joint)" if c["joint"] and c["variant"] != "cir" else "")
 
 
 def summary_lines(result: dict) -> list[str]:

@@ -20,10 +20,12 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+from brfgs.analysis.evaluate import evaluate_run
+from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
 from brfgs.errors import UserError
-from brfgs.train.config import TrainConfig
-from brfgs.train.evaluate import evaluate_run
-from brfgs.train.trainer import MODEL_FILE, STAGE1_CKPT, train
+from brfgs.model import MODEL_FILE
+from brfgs.train import TrainConfig, train
+from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
 STUDIES = ("kernels", "training", "bands", "baselines")
 FULL = ("iso", "vol", "geo", "spec")
@@ -47,8 +49,6 @@ def _runs(study: str, base: TrainConfig) -> list[tuple[str, str, TrainConfig, st
                 ("neural", "Neural decoder (MS-Splatting-style)", replace(full, variant="neural"), "full"),
                 ("full", "BRF-GS (Ours)", full, None)]
     if study == "bands":
-        from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
-
         return [(f"bands_{s}", STRATEGY_LABELS.get(s, s), replace(full, band_strategy=s), None) for s in TABLE2_STRATEGIES]
     raise UserError(f"unknown study {study!r}; choose one of {', '.join(STUDIES)}", field="study")
 
@@ -71,8 +71,7 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
         if only and name not in only:
             continue
         rdir = out / name
-        done = (rdir / "run.json").is_file() and json.loads((rdir / "run.json").read_text()).get("status") == "finished"
-        if not done:
+        if run_status(rdir) != "finished":
             log(f"[{study}] training {name}: {label}")
             from_stage1 = out / src / STAGE1_CKPT if src else None
             if from_stage1 is not None and not from_stage1.is_file():

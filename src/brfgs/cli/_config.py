@@ -1,0 +1,157 @@
+"""Command-line options generated from a config dataclass (one source of truth).
+
+:func:`config_command` adds one ``--option`` per field of a dataclass (nested dataclasses
+flattened: ``densify.refine_every`` is ``--densify-refine-every``), typed from the field, with
+the field's ``metadata["help"]`` as help and ``metadata["flag"]`` as an explicit flag
+(e.g. ``--joint/--decoupled``). Every generated option defaults to None, meaning "not given", so
+the command can layer preset < config file < options (:func:`apply_options`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import json
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import typer
+
+from brfgs.errors import UserError
+
+
+@dataclasses.dataclass(frozen=True)
+class ConfigOption:
+    """One generated option: the field path (``("densify", "refine_every")``), its type and flag."""
+
+    path: tuple[str, ...]
+    kind: Any
+    flag: str
+    help: str
+
+    @property
+    def name(self) -> str:
+        return "_".join(self.path)
+
+
+def _kind(tp) -> Any:
+    """The click-facing type of a field: bool, int, float, str; tuples are given as 'A,B,...' text."""
+    if typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp):
+        (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
+    if tp in (bool, int, float, str):
+        return tp
+    if typing.get_origin(tp) is tuple:
+        return str
+    raise TypeError(f"no command-line type for {tp!r}")
+
+
+def config_options(cls, prefix: tuple[str, ...] = ()) -> list[ConfigOption]:
+    """The options of every field of dataclass ``cls`` (nested dataclasses flattened)."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        path = prefix + (f.name,)
+        if dataclasses.is_dataclass(tp):
+            out += config_options(tp, path)
+            continue
+        flag = f.metadata.get("flag") or "--" + "-".join(path).replace("_", "-")
+        out.append(ConfigOption(path, _kind(tp), flag, f.metadata.get("help", "")))
+    return out
+
+
+def _parse_tuple(text: str, tp, option: ConfigOption) -> tuple:
+    """'A,B,...' -> tuple of the field's item type; UserError naming the option when malformed."""
+    args = typing.get_args(tp)
+    item = args[0]
+    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    try:
+        vals = tuple(item(p) for p in parts)
+    except ValueError:
+        raise UserError(f"expected comma-separated {item.__name__} values, got {text!r}", field=option.flag) from None
+    fixed = not (len(args) == 2 and args[1] is Ellipsis)
+    if fixed and len(vals) != len(args) or not vals:
+        raise UserError(f"expected {len(args) if fixed else 'one or more'} comma-separated values, got {text!r}",
+                        field=option.flag)
+    if item is float and not all(math.isfinite(v) for v in vals):
+        raise UserError(f"expected finite numbers, got {text!r}", field=option.flag)
+    return vals
+
+
+def _field_type(cls, path: tuple[str, ...]):
+    tp = cls
+    for name in path:
+        tp = typing.get_type_hints(tp)[name]
+    return tp
+
+
+def given_options(cls, values: dict[str, Any]) -> dict[tuple[str, ...], Any]:
+    """{field path: parsed value} of the generated options that were given (not None)."""
+    out = {}
+    for opt in config_options(cls):
+        v = values.get(opt.name)
+        if v is None:
+            continue
+        tp = _field_type(cls, opt.path)
+        out[opt.path] = _parse_tuple(v, tp, opt) if typing.get_origin(tp) is tuple else v
+    return out
+
+
+def apply_options(config, given: dict[tuple[str, ...], Any]):
+    """``config`` (a dataclass instance) with the fields in ``given`` replaced (nested paths too)."""
+    top: dict[str, Any] = {}
+    nested: dict[str, dict[tuple[str, ...], Any]] = {}
+    for path, v in given.items():
+        if len(path) == 1:
+            top[path[0]] = v
+        else:
+            nested.setdefault(path[0], {})[path[1:]] = v
+    for name, sub in nested.items():
+        top[name] = apply_options(getattr(config, name), sub)
+    return dataclasses.replace(config, **top)
+
+
+def read_config_file(path: Path) -> dict:
+    """A config.json written by a run (a JSON object); UserError naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("config file not found", file=path)
+    try:
+        data = json.loads(path.read_text())
+    except (ValueError, RecursionError, UnicodeDecodeError):
+        raise UserError("not a JSON file", file=path) from None
+    if not isinstance(data, dict):
+        raise UserError("expected a JSON object of training options", file=path)
+    return data
+
+
+def config_command(app: typer.Typer, name: str, cls, *, skip: tuple[str, ...] = ()) -> Callable:
+    """Decorator registering ``fn`` as command ``name`` with its own parameters plus one option
+    per field of ``cls`` (except ``skip``); ``fn`` receives the given ones as ``options``
+    ({field path: value}, see :func:`given_options`)."""
+
+    def deco(fn: Callable) -> Callable:
+        opts = [o for o in config_options(cls) if o.name not in skip]
+        own = [p for p in inspect.signature(fn).parameters.values() if p.name != "options"]
+        hints = typing.get_type_hints(fn)
+        params = [p.replace(annotation=hints.get(p.name, p.annotation)) for p in own]
+        for o in opts:
+            params.append(inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, annotation=Optional[o.kind],
+                                            default=typer.Option(None, o.flag, help=o.help, show_default=False)))
+        own_names = {p.name for p in own}
+
+        def command(**kwargs):
+            mine = {k: v for k, v in kwargs.items() if k in own_names}
+            return fn(**mine, options=given_options(cls, {k: v for k, v in kwargs.items() if k not in own_names}))
+
+        command.__name__ = fn.__name__
+        command.__doc__ = fn.__doc__
+        command.__signature__ = inspect.Signature(params)
+        command.__annotations__ = {p.name: p.annotation for p in params}
+        app.command(name)(command)
+        return fn
+
+    return deco

@@ -1,0 +1,80 @@
+"""Model files and checkpoints: safetensors (tensors only) + JSON metadata.
+
+Loading never executes code: :func:`load` uses ``safetensors`` (no pickle). Files are
+self-describing: the metadata string ``brfgs`` holds the schema version, the training
+config, the scene description (wavelengths, sun angles, intrinsics, frames with poses and
+split), the band selection, CIR scale, the appearance head and the autoencoder
+architecture, so a model renders without the training scene
+(:class:`brfgs.model.trained.TrainedModel`).
+
+Tensor name prefixes: ``param.`` Gaussian tensors, ``extra.`` non-per-Gaussian parameters
+(backgrounds), ``decoder.`` spectral autoencoder, ``neural.`` neural head; checkpoints add
+``optim.`` Adam moments, ``densify.`` densification statistics, ``rng.`` generator state.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+
+from brfgs.errors import UserError
+
+FORMAT = "brfgs-gaussians/1"
+# Version of the metadata layout. 1: files written before the version was recorded (same layout);
+# 2: ``schema_version`` recorded and validated on load.
+SCHEMA_VERSION = 2
+
+
+def save(path: str | Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path:
+    """Atomically write ``tensors`` + JSON ``meta`` (with the schema version) to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    clean = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
+    meta = {"schema_version": SCHEMA_VERSION, **meta}
+    save_file(clean, str(tmp), metadata={"format": FORMAT, "brfgs": json.dumps(meta)})
+    os.replace(tmp, path)
+    return path
+
+
+def load(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
+    """(tensors, meta) of a file written by :func:`save`; UserError naming the file if it is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError("model/checkpoint file not found", file=path)
+    try:
+        tensors = {}
+        with safe_open(str(path), framework="pt") as f:
+            md = f.metadata() or {}
+            for k in f.keys():
+                tensors[k] = f.get_tensor(k)
+    except Exception as exc:
+        raise UserError(f"not a readable safetensors file ({exc})", file=path) from None
+    if md.get("format") != FORMAT or "brfgs" not in md:
+        raise UserError(f"not a brfgs model file (format {md.get('format')!r}, expected {FORMAT!r})", file=path)
+    try:
+        meta = json.loads(md["brfgs"])
+    except (ValueError, RecursionError):
+        raise UserError("metadata is not valid JSON", file=path, field="brfgs") from None
+    if not isinstance(meta, dict):
+        raise UserError(f"metadata must be a JSON object, got {type(meta).__name__}", file=path, field="brfgs")
+    version = meta.get("schema_version", 1)
+    if not isinstance(version, int) or isinstance(version, bool) or not 1 <= version <= SCHEMA_VERSION:
+        raise UserError(f"schema version {version!r} is not supported (this brfgs reads 1..{SCHEMA_VERSION}; "
+                        "a newer brfgs wrote it?)", file=path, field="schema_version")
+    return tensors, meta
+
+
+def with_prefix(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    """Sub-dict of names starting with ``prefix``, prefix removed."""
+    return {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
+
+
+def prefixed(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    """``tensors`` with every name prefixed by ``prefix``."""
+    return {prefix + k: v for k, v in tensors.items()}

@@ -1,0 +1,99 @@
+"""A training run's folder: what it holds, how it is prepared, and its status file.
+
+``OUT/`` holds config.json (the options, loadable by ``brfgs train --config``), split.json,
+bands.json, init/ (points, cameras, report), autoencoder.json, checkpoints/last.safetensors
+(resume state), checkpoints/stage1.safetensors, model.safetensors (final), train_log.csv
+and run.json (status, phase, step). Rerunning on an unfinished folder resumes; a finished one
+is refused without ``overwrite``, and then only these outputs are removed.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+from brfgs.errors import UserError
+from brfgs.model import MODEL_FILE
+from brfgs.train.config import TrainConfig
+
+RUN_FILE = "run.json"
+CONFIG_FILE = "config.json"
+LOG_FILE = "train_log.csv"
+LAST_CKPT = "checkpoints/last.safetensors"
+STAGE1_CKPT = "checkpoints/stage1.safetensors"
+LOG_HEADER = ["phase", "step", "loss", "psnr", "n_gaussians"]
+OWNED_OUTPUTS = (CONFIG_FILE, "split.json", "bands.json", "autoencoder.json", LOG_FILE, RUN_FILE,
+                 MODEL_FILE, "checkpoints", "init", "metrics.json", "eval")
+
+
+def run_status(out: Path) -> str | None:
+    """Status recorded in ``out/run.json`` ("running", "interrupted", "finished") or None."""
+    p = Path(out) / RUN_FILE
+    return json.loads(p.read_text()).get("status") if p.is_file() else None
+
+
+class RunFolder:
+    """Paths of one run folder and the files the trainer writes there besides checkpoints."""
+
+    def __init__(self, out: str | Path):
+        self.out = Path(out)
+        self.model = self.out / MODEL_FILE
+        self.last_ckpt = self.out / LAST_CKPT
+        self.stage1_ckpt = self.out / STAGE1_CKPT
+        self.log = self.out / LOG_FILE
+
+    def prepare(self, cfg: TrainConfig, overwrite: bool) -> None:
+        """Create the folder; refuse a finished run (unless ``overwrite``), a foreign non-empty
+        folder, or resuming an unfinished run with other options; write config.json."""
+        status = run_status(self.out)
+        if status == "finished" and not overwrite:
+            raise UserError("a finished training run exists here; pass --overwrite to replace it "
+                            "(or choose another output folder)", file=self.out)
+        if status is not None and overwrite:
+            self._remove_outputs()
+        elif status is None and self.out.exists() and any(self.out.iterdir()) and not self.last_ckpt.exists():
+            foreign = [p.name for p in self.out.iterdir() if p.name not in OWNED_OUTPUTS]
+            if foreign:
+                raise UserError(f"output folder is not empty and is not a brfgs run (contains {foreign[:5]}); "
+                                "choose an empty or new folder", file=self.out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        config = self.out / CONFIG_FILE
+        if config.is_file() and self.last_ckpt.is_file():
+            old, new = json.loads(config.read_text()), json.loads(cfg.to_json())
+            if old != new:
+                diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+                raise UserError(f"this unfinished run was started with different options ({', '.join(diff)}); "
+                                "rerun with the same options to resume, or pass --overwrite", file=config)
+        config.write_text(json.dumps(cfg.to_dict(), indent=1, sort_keys=True))
+
+    def _remove_outputs(self) -> None:
+        """Remove only what a training run writes."""
+        for name in OWNED_OUTPUTS:
+            p = self.out / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            elif p.exists():
+                p.unlink()
+
+    def write_json(self, name: str, obj) -> Path:
+        """Write ``obj`` as indented JSON to ``out/name``."""
+        path = self.out / name
+        path.write_text(json.dumps(obj, indent=1))
+        return path
+
+    def write_status(self, info: dict) -> None:
+        """Atomically replace run.json with ``info``."""
+        tmp = self.out / (RUN_FILE + ".tmp")
+        tmp.write_text(json.dumps(info, indent=1))
+        tmp.replace(self.out / RUN_FILE)
+
+    def open_log(self):
+        """(file handle, csv writer) appending to train_log.csv, the header written once."""
+        new = not self.log.exists()
+        fh = open(self.log, "a", newline="")
+        writer = csv.writer(fh)
+        if new:
+            writer.writerow(LOG_HEADER)
+        return fh, writer

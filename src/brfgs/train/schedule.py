@@ -1,0 +1,47 @@
+"""Learning rates per phase and step (Adam over named tensors, brfgs.model.optim.NamedAdam)."""
+
+from __future__ import annotations
+
+import math
+
+from brfgs.train.config import TrainConfig
+from brfgs.train.phases import Phase
+
+LATENT_KEYS = ("z_iso", "z_vol", "z_geo", "sh", "feat")
+
+
+def means_lr(cfg: TrainConfig, step: int, steps: int, extent_m: float) -> float:
+    """Learning rate of the means: log-linear from lr_means to lr_means_final over the phase,
+    times the scene extent in metres (3DGS)."""
+    frac = step / max(steps, 1)
+    return math.exp((1 - frac) * math.log(cfg.lr_means * extent_m) + frac * math.log(cfg.lr_means_final * extent_m))
+
+
+def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent_m: float,
+                   neural_names=(), decoder_names=()) -> dict[str, float]:
+    """{tensor name: learning rate} of every tensor the phase optimises (absent = frozen).
+
+    ``neural_names`` / ``decoder_names``: parameter names of the neural head / the decoder.
+    """
+    c = cfg
+    lrs: dict[str, float] = {}
+    if phase.trains_geometry:
+        lrs.update({"means": means_lr(c, step, steps, extent_m), "log_scales": c.lr_scales, "quats": c.lr_quats,
+                    "opacity_logits": c.lr_opacity})
+    if phase == Phase.STAGE1:
+        lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "bg_colors": c.lr_background})
+    if phase.fits_head:
+        for k in LATENT_KEYS:
+            lrs[k] = c.lr_latent
+        lrs["z_spec"] = c.lr_spec
+        lrs["rho_raw"] = c.lr_rho
+        lrs["normals"] = c.lr_normals
+        lrs["bg_latent"] = c.lr_background
+        for k in neural_names:
+            lrs["neural." + k] = c.lr_neural
+        if c.finetune_decoder:
+            for k in decoder_names:
+                lrs["decoder." + k] = c.lr_decoder
+    if phase == Phase.CIR:
+        lrs.update({"sh": c.lr_colors, "bg_colors": c.lr_background})
+    return lrs

@@ -1,0 +1,142 @@
+"""A run's set-up: band selection, geometry initialisation, the spectral autoencoder, the
+initial Gaussians (paper section 3.2) and the appearance heads' starting values."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from brfgs.bands import select_bands
+from brfgs.brdf.geometry import gaussian_normals
+from brfgs.brdf.head import init_head_params
+from brfgs.brdf.sh import num_sh_bases
+from brfgs.data.cir import cir_band_indices, cir_scale
+from brfgs.init import initialize
+from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
+from brfgs.model.features import NeuralHead
+from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
+from brfgs.train.config import TrainConfig
+from brfgs.train.images import TrainImages
+from brfgs.train.phases import plan
+from brfgs.train.run_folder import RunFolder
+from brfgs.train.state import TrainState, head_config
+from brfgs.train.targets import backprojected_targets, ground_footprints
+
+
+def select_and_initialise(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, progress: bool, log):
+    """Band selection and SfM / known-pose initialisation; fills ``state.meta``; returns the
+    initialisation (points, colours, poses)."""
+    t = time.perf_counter()
+    folder.write_json("split.json", scene.split_record())
+    sel = select_bands(scene, strategy=cfg.band_strategy, top=cfg.top, progress=progress)
+    folder.write_json("bands.json", sel.to_json())
+    bands = [int(b) for b in sel.selected]
+    state.timings["bands"] = time.perf_counter() - t
+    log(f"bands: {cfg.band_strategy} -> {[round(float(scene.wavelengths_nm[b]), 1) for b in bands]} nm")
+    t = time.perf_counter()
+    init = initialize(scene, bands, poses=cfg.poses, out_dir=folder.out / "init", selection=sel, progress=progress)
+    state.timings["init"] = time.perf_counter() - t
+    log(f"init: {init.points.shape[0]} points ({init.report.get('poses', cfg.poses)})")
+    cir_idx = cir_band_indices(scene.wavelengths_nm)
+    # stage 1 fits the selected bands and, by default, the CIR bands (green, red, NIR): the selected
+    # bands make SfM reliable, the CIR bands carry the visible texture that the composites show
+    s1 = sorted(set(bands) | {int(i) for i in cir_idx}) if cfg.stage1_cir_bands else bands
+    state.meta = {"scene": scene_description(scene, init.c2w), "bands": bands, "stage1_bands": s1,
+                  "cir_indices": list(cir_idx), "cir_scale": [float(v) for v in cir_scale(scene)],
+                  "extent_m": scene_extent(init.points)}
+    return init
+
+
+def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: TrainImages, log) -> None:
+    """Gaussians at the sparse points (plus a surface fill), stage-1 colours from the images,
+    optional SH rest terms, and the stage-1 background."""
+    bands, s1 = state.meta["bands"], state.meta["stage1_bands"]
+    pts, cols = np.asarray(init.points, np.float64), np.asarray(init.colors, np.float64)
+    if cfg.init_fill_points > 0:
+        cover, seen = ground_footprints(scene, pts, init.c2w)
+        extra = surface_fill(pts, cfg.init_fill_points, cover_xy=cover, keep=seen)
+        if extra.shape[0]:
+            pts = np.concatenate([pts, extra], 0)
+            cols = np.concatenate([cols, np.full((extra.shape[0], cols.shape[1]), np.nan)], 0)
+        log(f"init: +{extra.shape[0]} surface-fill points")
+    if s1 != bands:  # colours of the extra bands come from the images below
+        cols = np.full((cols.shape[0], len(s1)), np.nan)
+    gm = init_from_points(pts, np.nan_to_num(cols), cfg.latent_dim, cfg.init_opacity)
+    state.gaussians = gm
+    if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
+        with torch.no_grad():
+            gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
+                                                            backend=cfg.backend))
+    if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
+        k = gm["colors"].shape[1]
+        gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
+    state.densify = DensifyState(gm.n)
+    bg = np.nanmean(init.colors, 0) if s1 == bands else gm["colors"].detach().mean(0).numpy()  # [C]
+    state.extra = {"bg_colors": torch.as_tensor(bg, dtype=torch.float32).requires_grad_(True)}
+
+
+def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainImages, folder: RunFolder,
+                    progress: bool, log) -> None:
+    """Train the spectral autoencoder (eq. 9) on pixels of the training views; report on test pixels."""
+    full = images("full")
+    loaders = [(lambda i=i: full.get(i)[0].numpy() * np.where(full.get(i)[1].numpy()[..., None], 1.0, np.nan))
+               for i in scene.train_indices]
+    pix = sample_pixels(loaders, cfg.ae_max_pixels, cfg.seed)
+    acfg = AutoencoderConfig(latent_dim=cfg.latent_dim, steps=cfg.ae_steps, batch_size=cfg.ae_batch,
+                             max_pixels=cfg.ae_max_pixels, seed=cfg.seed)
+    state.decoder, hist = train_autoencoder(pix, acfg, progress=progress)
+    report = {"config": acfg.__dict__, "loss_first": hist[0] if hist else None, "loss_last": hist[-1] if hist else None,
+              "train": evaluate_autoencoder(state.decoder, pix)}
+    if scene.test_indices:
+        test = [(lambda i=i: scene.load_image(i)) for i in scene.test_indices]
+        report["test"] = evaluate_autoencoder(state.decoder, sample_pixels(test, min(cfg.ae_max_pixels, 50_000), cfg.seed + 1))
+    folder.write_json("autoencoder.json", report)
+    state.meta["autoencoder_report"] = report
+    te = report.get("test", report["train"])
+    log(f"autoencoder d={cfg.latent_dim}: test SAM {te['sam_mean_rad']:.4f} rad, RMSE {te['rmse']:.5f}")
+
+
+def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -> None:
+    """Appearance tensors of the variant, the view-independent part from back-projected observations."""
+    gm, n, cams = state.gaussians, state.gaussians.n, state.cameras
+    if cfg.variant == "cir":
+        base = backprojected_targets(gm, images("cir"), cams, scene.train_indices, backend=cfg.backend)
+        params = init_head_params(head_config(cfg), n, 3, z_init=base)
+        state.extra["bg_colors"] = base.mean(0)
+    else:
+        base = backprojected_targets(gm, images("full"), cams, scene.train_indices, encode=state.decoder.encode,
+                                     backend=cfg.backend)
+        state.extra["bg_latent"] = base.mean(0).detach()
+        if cfg.variant == "neural":
+            params = {"feat": base}
+            torch.manual_seed(cfg.seed)
+            state.neural = NeuralHead(cfg.latent_dim)
+        else:
+            hc = head_config(cfg)
+            params = init_head_params(hc, n, cfg.latent_dim, z_init=base)
+            if cfg.variant == "brf" and cfg.learn_normals and hc.needs_normals:
+                up = torch.zeros_like(gm.means)
+                up[:, 2] = 1.0
+                params["normals"] = gaussian_normals(gm.quats, gm.scales, up).detach()
+    gm.set_head(params, cfg.variant)
+    gm.centred = cfg.centred_kernels and cfg.variant == "brf" and "iso" in cfg.components
+    for v in state.extra.values():
+        v.requires_grad_(True)
+
+
+def run_setup(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, progress: bool, log) -> TrainImages:
+    """The whole set-up of a new run; leaves ``state`` at the first phase, step 0."""
+    init = select_and_initialise(state, scene, cfg, folder, progress, log)
+    images = TrainImages(scene, state.stage1_bands(), state.meta["cir_indices"], state.meta["cir_scale"], cfg.cache_gib)
+    initial_gaussians(state, scene, cfg, init, images, log)
+    if cfg.variant != "cir":  # spectral autoencoder (not for the CIR-only baseline)
+        t = time.perf_counter()
+        fit_autoencoder(state, scene, cfg, images, folder, progress, log)
+        state.timings["autoencoder"] = time.perf_counter() - t
+    if cfg.variant == "cir" or cfg.joint:
+        init_head(state, cfg, scene, images)
+    state.phase = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps)[0][0]
+    state.step = 0
+    return images

@@ -1,0 +1,173 @@
+"""One training step's forward pass and losses, as functions of the run state, a batch and
+the options (paper eqs. 24–27 plus the geometry priors of :mod:`brfgs.train.losses`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+from torch import Tensor
+
+from brfgs.model.camera import Camera
+from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
+from brfgs.model.render import composite_background, decode_image, rasterize_features
+from brfgs.render import RenderOutput
+from brfgs.train.config import TrainConfig
+from brfgs.train.images import TrainImages
+from brfgs.train.losses import (depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
+                                masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
+from brfgs.train.phases import Phase
+from brfgs.train.state import TrainState, head_config
+
+
+@dataclass
+class Batch:
+    """One training view (or a window of it): camera, target [H, W, C], valid [H, W]."""
+
+    index: int
+    cam: Camera
+    target: Tensor
+    valid: Tensor
+    window: tuple[int, int, int, int] | None  # x0, y0, w, h
+
+
+@dataclass
+class StepResult:
+    loss: Tensor
+    psnr: float
+    out: RenderOutput
+
+
+def pick_view(state: TrainState, train_indices: list[int], width: int, height: int, cfg: TrainConfig,
+              phase: Phase) -> tuple[int, tuple[int, int, int, int] | None]:
+    """Next training view (epoch-wise permutation) and an optional patch window.
+
+    Patches of ``patch_px`` for large images; in the joint phase, square patches of about
+    ``stage2_rays`` pixels (every pixel is decoded there, for the D-SSIM term).
+    """
+    if not state.perm:
+        state.perm = torch.randperm(len(train_indices), generator=state.gen).tolist()
+    i = train_indices[state.perm.pop()]
+    P = cfg.patch_px
+    if phase == Phase.JOINT and cfg.stage2_rays > 0:
+        side = max(int(math.sqrt(cfg.stage2_rays)), 16)
+        P = min(P, side) if P > 0 else side
+    if P > 0 and width * height > P * P:
+        pw, ph = min(P, width), min(P, height)
+        x0 = int(torch.randint(0, width - pw + 1, (1,), generator=state.gen))
+        y0 = int(torch.randint(0, height - ph + 1, (1,), generator=state.gen))
+        return i, (x0, y0, pw, ph)
+    return i, None
+
+
+def make_batch(state: TrainState, images: TrainImages, phase: Phase, i: int, window) -> Batch:
+    """The camera and target of view ``i`` for ``phase``, cropped to ``window``."""
+    cam = state.cameras[i]
+    kind = {Phase.STAGE1: "colors", Phase.CIR: "cir"}.get(phase, "full")
+    target, valid = images(kind).get(i)
+    if window is not None:
+        x0, y0, w, h = window
+        cam = cam.crop(x0, y0, w, h)
+        target, valid = target[y0 : y0 + h, x0 : x0 + w], valid[y0 : y0 + h, x0 : x0 + w]
+    return Batch(i, cam, target, valid, window)
+
+
+def neighbours(means: Tensor, k: int = 8) -> Tensor:  # [N, k] long
+    """Indices of each Gaussian's k nearest other Gaussians (means [N, 3])."""
+    n = means.shape[0]
+    pts = means.detach().numpy()
+    _, nbr = cKDTree(pts).query(pts, k=min(k, n - 1) + 1)
+    return torch.as_tensor(np.asarray(nbr).reshape(n, -1)[:, 1:], dtype=torch.long)
+
+
+def _features(state: TrainState, cfg: TrainConfig, phase: Phase, cam: Camera) -> Tensor:
+    """Per-Gaussian features [N, C] the phase renders."""
+    if phase == Phase.STAGE1:
+        return stage1_colors(state.gaussians, cam)
+    if phase == Phase.CIR:
+        return gaussian_features(state.gaussians, cam, state.sun, head_config(cfg))
+    return gaussian_features(state.gaussians, cam, state.sun, head_config(cfg), state.neural)
+
+
+def _geometry_channels(state: TrainState, cfg: TrainConfig, cam: Camera) -> list[Tensor]:
+    """Depth + normal (+ depth²) channels [N, 4 or 5] for the surface priors."""
+    chans = [camera_depth_normals(state.gaussians, cam)]
+    if cfg.lambda_depth_conc > 0:
+        chans.append(camera_depth_squared(state.gaussians, cam))
+    return chans
+
+
+def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput, n_feat: int, batch: Batch,
+                         use_priors: bool) -> Tensor | None:
+    """Flatness loss plus, when ``use_priors``, the depth-normal, depth-concentration and depth
+    smoothness priors on the rendered geometry channels (None when all are off)."""
+    c = cfg
+    greg = c.lambda_flat * flatten_loss(state.gaussians["log_scales"]) if c.lambda_flat > 0 else None
+    if not use_priors:
+        return greg
+    geo = out.image[..., n_feat:]  # [H, W, 4 or 5] depth, normal (, depth²)
+    terms = []
+    if c.lambda_normal > 0:
+        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K))
+    if c.lambda_depth_conc > 0:
+        terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
+    if c.lambda_depth_smooth > 0:
+        terms.append(c.lambda_depth_smooth * depth_smoothness_loss(geo[..., 0], out.alpha, batch.target, batch.valid))
+    if terms:
+        greg = sum(terms) if greg is None else greg + sum(terms)
+    return greg
+
+
+def _plus(loss: Tensor, reg: Tensor | None) -> Tensor:
+    return loss if reg is None else loss + reg
+
+
+def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tensor, batch: Batch,
+                   greg: Tensor | None) -> tuple[Tensor, float]:
+    """Decode the latent image and score it on all bands (eqs. 25–27); stage 2 samples rays."""
+    c = cfg
+    h, w = lat.shape[:2]
+    target, valid = batch.target, batch.valid
+    if phase == Phase.STAGE2 and 0 < c.stage2_rays < h * w:
+        # ray sampling: decode and score a random subset of the rendered pixels
+        idx = torch.randperm(h * w, generator=state.gen)[: c.stage2_rays]
+        pred = state.decoder.decode(lat.reshape(h * w, -1)[idx])  # [R, B]
+        tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
+        return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
+    pred = decode_image(state.decoder, lat)
+    loss = stage2_loss(pred, target, valid, c.beta_cos)
+    if phase == Phase.JOINT and c.alpha_dssim > 0:
+        sel = state.stage1_bands()
+        loss = loss + c.alpha_dssim * (stage1_loss(pred[..., sel], target[..., sel], valid, 1.0))
+    return _plus(loss, greg), masked_psnr(pred, target, valid)
+
+
+def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, phase_steps: int,
+            nbrs: Tensor | None = None) -> StepResult:
+    """Render ``batch`` for ``phase`` and compute its loss (with the phase's regularisers).
+
+    ``phase_steps``: steps of the phase (the surface priors start at ``normal_start`` of it);
+    ``nbrs`` [N, 8]: neighbour indices for the stage-2 normal smoothness (when it is on).
+    """
+    c = cfg
+    surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0
+    use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
+    feats = _features(state, cfg, phase, batch.cam)
+    n_feat = feats.shape[-1]
+    if use_priors:  # depth + normal (+ depth²) channels for the surface priors
+        feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
+    out = rasterize_features(state.gaussians, feats, batch.cam, c.backend)
+    image = out.image[..., :n_feat]
+    greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
+    if phase.renders_colors:
+        pred = composite_background(image, out.alpha, state.extra["bg_colors"])
+        loss = stage1_loss(pred, batch.target, batch.valid, c.alpha_dssim)
+        return StepResult(_plus(loss, greg), masked_psnr(pred, batch.target, batch.valid), out)
+    if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in state.gaussians:
+        greg = c.lambda_normal_smooth * normal_smoothness_loss(state.gaussians["normals"], nbrs)
+    lat = composite_background(image, out.alpha, state.extra["bg_latent"])
+    loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg)
+    return StepResult(loss, psnr, out)

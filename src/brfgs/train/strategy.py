@@ -1,0 +1,60 @@
+"""Densification as a strategy with hooks (the idea of gsplat's ``DefaultStrategy``).
+
+The trainer calls :meth:`DensifyStrategy.before_backward` (keep the screen-space gradient),
+:meth:`DensifyStrategy.after_backward` (accumulate it) and :meth:`DensifyStrategy.after_step`
+(clone/split/prune every ``refine_every`` steps, reset opacities every ``reset_every``) in the
+phases that train geometry. The row edits themselves are :mod:`brfgs.model.densify`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+
+from brfgs.model import DensifyConfig, DensifyState, GaussianModel, NamedAdam, refine, reset_opacity
+from brfgs.model.densify import accumulate
+from brfgs.render import RenderOutput
+
+
+@dataclass
+class DensifyStrategy:
+    """3DGS adaptive density control for one run.
+
+    cfg: thresholds and schedule (:class:`brfgs.model.DensifyConfig`).
+    max_gaussians_per_px: cap at this many Gaussians per image pixel (0 = cfg.max_gaussians only).
+    width, height: size of a full training image (px).
+    extent_m: scene extent (m) that the size thresholds are relative to.
+    Densification stops at 3/4 of the phase at the latest (3DGS: 15k of 30k steps) and no
+    opacity reset happens after that: a late reset leaves the frozen stage-2 geometry nearly
+    transparent.
+    """
+
+    cfg: DensifyConfig
+    max_gaussians_per_px: float
+    width: int
+    height: int
+    extent_m: float
+
+    def before_backward(self, out: RenderOutput) -> None:
+        """Keep the gradient of the projected means (the densification signal)."""
+        means2d = out.meta.get("means2d")
+        if means2d is not None and means2d.requires_grad and not means2d.is_leaf:
+            means2d.retain_grad()
+
+    def after_backward(self, state: DensifyState, out: RenderOutput, width: int, height: int) -> None:
+        """Accumulate the screen-space gradient norms of the visible Gaussians."""
+        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height)
+
+    def after_step(self, model: GaussianModel, opt: NamedAdam, state: DensifyState, step: int, steps: int,
+                   gen: torch.Generator) -> None:
+        """Refine (clone, split, prune) or reset opacities when the schedule says so."""
+        d = self.cfg
+        stop = min(d.refine_stop, int(0.75 * steps))
+        if d.refine_start < step <= stop and step % d.refine_every == 0:
+            cap = d.max_gaussians
+            if self.max_gaussians_per_px > 0:
+                cap = min(cap, int(self.max_gaussians_per_px * self.width * self.height))
+            refine(model, opt, state, replace(d, max_gaussians=cap), self.extent_m, gen)
+        if d.reset_every > 0 and step % d.reset_every == 0 and step < stop:
+            reset_opacity(model, opt, state, d)

@@ -1,0 +1,147 @@
+"""The package's shape: imports run one way through the layers, in-function imports only for
+heavy optional dependencies (with a reason), and no file or function beyond the size limits."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "brfgs"
+
+# Top to bottom: a package may import its own layer's listed peers and anything below, never above.
+LAYERS = [
+    {"__main__"},
+    {"cli"},
+    {"workflows"},
+    {"train", "analysis"},
+    {"model"},
+    {"render", "brdf", "spectral", "init", "bands", "sim"},
+    {"data"},
+    {"errors", "__init__"},
+]
+# Same-layer imports that are allowed (importer, imported); everything else in a layer is separate.
+PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render")}
+# Dependencies that may be imported inside functions (heavy, optional or trap-prone), with a
+# "lazy:" comment saying why.
+LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "brfgs.sim")
+
+
+def layer_of(package: str) -> int:
+    for rank, names in enumerate(LAYERS):
+        if package in names:
+            return rank
+    raise KeyError(package)
+
+
+def check_edge(importer: str, imported: str) -> str | None:
+    """Why ``importer`` (a brfgs sub-package) may not import ``imported``, or None if it may."""
+    if importer == imported:
+        return None
+    a, b = layer_of(importer), layer_of(imported)
+    if a > b:
+        return f"{importer} (layer {a}) imports {imported} (layer {b}, higher)"
+    if a == b and (importer, imported) not in PEERS:
+        return f"{importer} imports its peer {imported} (same layer, not an allowed peer import)"
+    return None
+
+
+def _package(path: Path) -> str:
+    rel = path.relative_to(SRC)
+    return rel.parts[0] if len(rel.parts) > 1 else rel.stem
+
+
+def _type_checking_lines(tree: ast.AST) -> set[int]:
+    lines = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING":
+            for sub in node.body:
+                lines.update(range(sub.lineno, sub.end_lineno + 1))
+    return lines
+
+
+def brfgs_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, imported sub-package) of every ``brfgs.*`` import in a module (TYPE_CHECKING blocks aside)."""
+    tree = ast.parse(path.read_text())
+    skip = _type_checking_lines(tree)
+    out = []
+    for node in ast.walk(tree):
+        if getattr(node, "lineno", None) in skip:
+            continue
+        names = []
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        out += [(node.lineno, n.split(".")[1]) for n in names if n.startswith("brfgs.")]
+    return out
+
+
+def layer_violations() -> list[str]:
+    out = []
+    for path in sorted(SRC.rglob("*.py")):
+        pkg = _package(path)
+        for line, imported in brfgs_imports(path):
+            why = check_edge(pkg, imported)
+            if why:
+                out.append(f"{path.relative_to(SRC.parent)}:{line}: {why}")
+    return out
+
+
+def test_imports_run_one_way_through_the_layers():
+    assert layer_violations() == []
+
+
+def test_the_check_would_fail_on_the_old_train_analysis_cycle():
+    # before the clean-up train/evaluate.py imported analysis.metrics and analysis/renderer.py imported train.trainer
+    assert check_edge("train", "analysis") is not None
+    assert check_edge("analysis", "train") is not None
+    assert check_edge("model", "train") is not None
+    assert check_edge("data", "model") is not None
+    assert check_edge("analysis", "model") is None and check_edge("cli", "train") is None
+
+
+def _function_imports(tree: ast.AST):
+    for fn in ast.walk(tree):
+        if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(fn):
+                if isinstance(node, (ast.Import, ast.ImportFrom)):
+                    yield node
+
+
+def test_imports_inside_functions_only_for_heavy_optional_dependencies():
+    """Outside cli/ (whose command bodies import the library lazily so that --help stays fast),
+    an import inside a function must be a heavy optional dependency and say why ('lazy:')."""
+    bad = []
+    for path in sorted(SRC.rglob("*.py")):
+        if _package(path) == "cli":
+            continue
+        lines = path.read_text().splitlines()
+        for node in _function_imports(ast.parse("\n".join(lines))):
+            mod = node.module if isinstance(node, ast.ImportFrom) else node.names[0].name
+            context = " ".join(lines[max(node.lineno - 2, 0):node.lineno])
+            if not (mod or "").startswith(LAZY_OK) or "lazy:" not in context:
+                bad.append(f"{path.relative_to(SRC.parent)}:{node.lineno}: import {mod}")
+    assert bad == []
+
+
+def test_code_shape_limits():
+    spec = importlib.util.spec_from_file_location("check_code_shape", SRC.parents[1] / "scripts" / "check_code_shape.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.violations(SRC) == []
+
+
+@pytest.mark.parametrize("module", ["brfgs.init", "brfgs.model", "brfgs.analysis.evaluate"])
+def test_importing_the_library_does_not_load_pycolmap_or_mitsuba(module, tmp_path):
+    """pycolmap must never be imported before zlib (it breaks zlib: 'free(): invalid pointer'),
+    and mitsuba needs DRJIT_LIBLLVM_PATH first: both stay out of plain library imports."""
+    import subprocess
+
+    code = f"import sys, {module}; print(sorted(m for m in ('pycolmap', 'mitsuba') if m in sys.modules))"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
