@@ -74,3 +74,57 @@ def test_ablate_training_cli(scene, tmp_path):
     assert "Joint optimization" in md and "BRF-GS (Full)" in md
     csv = (out / "table_training.csv").read_text().splitlines()
     assert len(csv) == 3 and "sam_truth" in csv[0]
+
+
+def test_every_training_option_is_on_the_command_line():
+    """The options of brfgs train are generated from TrainConfig: every field (nested densification
+    fields too) is an option, none is listed by hand."""
+    import dataclasses
+
+    import typer.main
+
+    from brfgs.cli import app
+    from brfgs.cli._config import config_options
+    from brfgs.train.config import TrainConfig
+
+    cmd = typer.main.get_command(app).commands["train"]
+    flags = {f for p in cmd.params for f in p.opts + p.secondary_opts}
+    expected = config_options(TrainConfig)
+    from brfgs.model import DensifyConfig
+
+    n_fields = sum(len(dataclasses.fields(DensifyConfig)) if f.name == "densify" else 1 for f in dataclasses.fields(TrainConfig))
+    assert len(expected) == n_fields
+    for opt in expected:
+        assert opt.flag.split("/")[0] in flags, opt.flag
+    assert "--densify-refine-every" in flags and "--lr-means-final" in flags and "--ae-steps" in flags
+
+
+def test_config_file_reruns_a_run_exactly(scene, tmp_path, capsys):
+    """brfgs train --config RUN/config.json trains with exactly RUN's options (bit-identical model);
+    options given next to it override the file; a bad file is a one-line error naming it."""
+    from brfgs.model.io import load
+
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    opts = [*TINY, "--no-evaluate", "--densify-refine-every", "5", "--lr-spec", "0.1", "--components", "iso,vol,spec"]
+    assert main(["train", str(scene), str(a), *opts]) == 0
+    assert main(["train", str(scene), str(b), "--config", str(a / "config.json"), "--quiet", "--no-evaluate"]) == 0
+    assert (a / "config.json").read_text() == (b / "config.json").read_text()
+    ta, tb = load(a / "model.safetensors")[0], load(b / "model.safetensors")[0]
+    assert ta.keys() == tb.keys() and all(torch.equal(ta[k], tb[k]) for k in ta)
+    assert main(["train", str(scene), str(c), "--config", str(a / "config.json"), "--stage2-steps", "2", "--quiet",
+                 "--no-evaluate"]) == 0
+    cfg_c = json.loads((c / "config.json").read_text())
+    assert cfg_c["stage2_steps"] == 2 and cfg_c["densify"]["refine_every"] == 5 and cfg_c["lr_spec"] == 0.1
+    assert cfg_c["components"] == ["iso", "vol", "spec"]
+    bad = tmp_path / "bad.json"
+    for text, field in (('{"stage1_steps": "many"}', "stage1_steps"), ('{"nope": 1}', "config"), ("[1, 2]", None),
+                        ("{not json", None), ('{"densify": {"refine_every": 1.5}}', "densify.refine_every")):
+        bad.write_text(text)
+        capsys.readouterr()
+        assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(bad), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert str(bad) in err and len(err.strip().splitlines()) == 1, err
+        if field:
+            assert field in err
+    assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(a / "config.json"), "--preset", "fast"]) == 2
+    assert not (tmp_path / "d").exists()

@@ -10,7 +10,7 @@ from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model.gaussians import init_from_points
 from brfgs.model.camera import camera_from_c2w
 from brfgs.model.features import camera_depth_normals
-from brfgs.model.render import rasterize_features
+from brfgs.model.rendering import rasterize_features
 from brfgs.train.losses import depth_normal_loss, flatten_loss, normals_from_depth
 
 

@@ -11,11 +11,10 @@ from pathlib import Path
 import typer
 
 from brfgs.cli._config import apply_options, config_command
+from brfgs.workflows.options import DemoConfig
 
 
 def register(app: typer.Typer) -> None:
-    from brfgs.workflows.demo import DemoConfig
-
     @config_command(app, "demo", DemoConfig)
     def demo_cmd(
         out: Path = typer.Argument(Path("brfgs-demo"), help="Folder for the demo's scene, runs and report."),

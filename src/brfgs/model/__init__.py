@@ -8,18 +8,29 @@ render path.
 
 Modules: gaussians.py (parameter container, initialisation), densify.py (split/clone/prune),
 optim.py (Adam over named tensors), camera.py (cameras, scene description), features.py
-(per-Gaussian features: stage-1 colours, the head's latent, geometry channels), render.py
+(per-Gaussian features: stage-1 colours, the head's latent, geometry channels), rendering.py
 (rasterize + composite + decode: :func:`render`), trained.py (:class:`TrainedModel`),
 io.py (safetensors files), schema.py (validation of model files).
 """
 
-from brfgs.model.camera import Camera, camera_from_c2w, camera_from_intrinsics, scene_description
-from brfgs.model.densify import DensifyConfig, DensifyState, refine, reset_opacity
-from brfgs.model.gaussians import APPEARANCES, GaussianModel, init_from_points, scene_extent, surface_fill
-from brfgs.model.optim import NamedAdam
-from brfgs.model.render import RenderedView, render
-from brfgs.model.trained import MODEL_FILE, TrainedModel
+import importlib
 
-__all__ = ["APPEARANCES", "Camera", "DensifyConfig", "DensifyState", "GaussianModel", "MODEL_FILE", "NamedAdam",
-           "RenderedView", "TrainedModel", "camera_from_c2w", "camera_from_intrinsics", "init_from_points", "refine",
-           "render", "reset_opacity", "scene_description", "scene_extent", "surface_fill"]
+# Names exported here, by module. They load on first use (PEP 562), so that light modules such
+# as brfgs.model.densify_config can be imported (by the command line) without torch.
+_EXPORTS = {
+    "brfgs.model.camera": ("Camera", "camera_from_c2w", "camera_from_intrinsics", "scene_description"),
+    "brfgs.model.densify": ("DensifyState", "refine", "reset_opacity"),
+    "brfgs.model.densify_config": ("DensifyConfig",),
+    "brfgs.model.gaussians": ("APPEARANCES", "GaussianModel", "init_from_points", "scene_extent", "surface_fill"),
+    "brfgs.model.optim": ("NamedAdam",),
+    "brfgs.model.rendering": ("RenderedView", "render"),
+    "brfgs.model.trained": ("MODEL_FILE", "TrainedModel"),
+}
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'brfgs.model' has no attribute {name!r}")
+    return getattr(importlib.import_module(_WHERE[name]), name)

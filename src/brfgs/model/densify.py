@@ -12,29 +12,12 @@ The optimiser moments follow the row edits (new rows start at zero).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import torch
 
+from brfgs.model.densify_config import DensifyConfig
 from brfgs.model.gaussians import GaussianModel, inverse_sigmoid
 from brfgs.model.optim import NamedAdam
 from brfgs.render.geometry import quat_to_rotmat
-
-
-@dataclass
-class DensifyConfig:
-    """Adaptive density control (see the module docstring); every field is a ``brfgs train``
-    option ``--densify-<field>``."""
-
-    refine_start: int = field(default=300, metadata={"help": "First step that may clone, split or prune."})
-    refine_stop: int = field(default=2500, metadata={"help": "Last step that may (at most 3/4 of the phase)."})
-    refine_every: int = field(default=100, metadata={"help": "Steps between refinements."})
-    reset_every: int = field(default=1500, metadata={"help": "Steps between opacity resets (0 = never)."})
-    grow_grad2d: float = field(default=0.0002, metadata={"help": "Mean screen-space gradient (NDC) that grows a Gaussian."})
-    grow_scale3d: float = field(default=0.01, metadata={"help": "Clone below, split above this largest scale (x scene extent)."})
-    prune_opacity: float = field(default=0.005, metadata={"help": "Prune Gaussians below this opacity."})
-    prune_scale3d: float = field(default=0.1, metadata={"help": "Prune Gaussians larger than this (x scene extent) after a reset."})
-    max_gaussians: int = field(default=60_000, metadata={"help": "Never grow beyond this many Gaussians."})
 
 
 class DensifyState:

@@ -47,7 +47,7 @@ class GaussianModel:
         self.appearance = appearance
         self.latent_dim = int(latent_dim)
         self.n_colors = int(n_colors)
-        self.centred = False  # hybrid head in the centred training form (brfgs.model.render.centred_hybrid_latent)
+        self.centred = False  # hybrid head in the centred training form (brfgs.model.features.centred_hybrid_latent)
 
     # -- views -----------------------------------------------------------------
     def __getitem__(self, key: str) -> torch.Tensor:

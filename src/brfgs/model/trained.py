@@ -6,7 +6,7 @@ appearance head (:class:`brfgs.brdf.head.HeadConfig` or the neural head), the sp
 intrinsics, frames with poses and split; :func:`brfgs.model.camera.scene_description`) and the
 training options, stored as ``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON
 metadata with a schema version, validated on load by :mod:`brfgs.model.schema`; no code runs).
-:func:`brfgs.model.render.render` renders it from any camera.
+:func:`brfgs.model.rendering.render` renders it from any camera.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from brfgs.model import io
 from brfgs.model.camera import Camera, cameras_from_description, intrinsics_from_description
 from brfgs.model.features import HEAD_PARAM_KEYS, NeuralHead
 from brfgs.model.gaussians import GaussianModel
-from brfgs.model.render import decode_image
+from brfgs.model.rendering import decode_image
 from brfgs.model.schema import check_metadata, check_tensors
 from brfgs.spectral.autoencoder import SpectralAutoencoder, autoencoder_from_state, autoencoder_state
 

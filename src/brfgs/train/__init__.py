@@ -8,7 +8,15 @@ Evaluation of a finished run is :func:`brfgs.analysis.evaluate.evaluate_run`; st
 and evaluate several runs (ablations, the demo) are in :mod:`brfgs.workflows`.
 """
 
-from brfgs.train.config import TrainConfig, preset
-from brfgs.train.trainer import Trainer, train
+import importlib
 
-__all__ = ["TrainConfig", "Trainer", "preset", "train"]
+# Exported names load on first use (PEP 562): brfgs.train.config stays importable without torch.
+_WHERE = {"TrainConfig": "brfgs.train.config", "preset": "brfgs.train.config", "Trainer": "brfgs.train.trainer",
+          "train": "brfgs.train.trainer"}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'brfgs.train' has no attribute {name!r}")
+    return getattr(importlib.import_module(_WHERE[name]), name)

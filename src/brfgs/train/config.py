@@ -12,7 +12,7 @@ import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from brfgs.errors import UserError
-from brfgs.model.densify import DensifyConfig
+from brfgs.model.densify_config import DensifyConfig
 
 VARIANTS = ("brf", "sh", "neural", "cir")
 

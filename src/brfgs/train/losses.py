@@ -132,7 +132,7 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
 
     Args:
         geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
-            :func:`brfgs.model.render.camera_depth_normals`.
+            :func:`brfgs.model.features.camera_depth_normals`.
         alpha: [H, W] accumulated opacity.
         K: [3, 3] intrinsics of the rendered window.
     n_r is the normalised rendered normal, n_d the normal of the rendered depth map
@@ -158,8 +158,8 @@ def depth_concentration_loss(geo: torch.Tensor, alpha: torch.Tensor, min_alpha: 
 
     Args:
         geo: [H, W, 2] rasterized (premultiplied) camera depth t and t² (m, m²)
-            (:func:`brfgs.model.render.camera_depth_normals` channel 0,
-            :func:`brfgs.model.render.camera_depth_squared`); E_w[·] = channel / alpha.
+            (:func:`brfgs.model.features.camera_depth_normals` channel 0,
+            :func:`brfgs.model.features.camera_depth_squared`); E_w[·] = channel / alpha.
         alpha: [H, W] accumulated opacity; pixels below ``min_alpha`` do not count.
     Zero when every ray's weight sits at one depth; a semi-transparent cloud 1 m thick seen
     from 100 m gives about 0.005 per pixel. Without it a textureless surface (water) can be

@@ -13,7 +13,7 @@ from torch import Tensor
 
 from brfgs.model.camera import Camera
 from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
-from brfgs.model.render import composite_background, decode_image, rasterize_features
+from brfgs.model.rendering import composite_background, decode_image, rasterize_features
 from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
