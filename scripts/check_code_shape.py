@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """List code-shape violations in src/brfgs: files over 500 lines, functions over 80 lines or
-over 12 parameters. Numba kernels (decorated with ``njit``/``jit``) and command-line signatures
-(functions in ``cli/`` that are Typer commands) are exempt. Exit 1 when anything is listed.
+over 12 parameters. Numba kernels (decorated with ``njit``/``jit``) are exempt; command-line
+functions (Typer commands in ``cli/``) are exempt from the parameter count only (each option is a
+parameter). Exit 1 when anything is listed.
 
     python3 scripts/check_code_shape.py [SRC_DIR]
 """
@@ -38,8 +39,7 @@ def _is_cli_command(path: Path, node: ast.FunctionDef) -> bool:
     if "cli" not in path.parts:
         return False
     defaults = node.args.defaults + [d for d in node.args.kw_defaults if d is not None]
-    return any(isinstance(d, ast.Call) and getattr(d.func, "attr", "") in ("Argument", "Option") for d in defaults) \
-        or node.name.endswith("_cmd") or node.name == "register"
+    return any(isinstance(d, ast.Call) and getattr(d.func, "attr", "") in ("Argument", "Option") for d in defaults)
 
 
 def violations(src: Path) -> list[str]:
@@ -54,12 +54,12 @@ def violations(src: Path) -> list[str]:
         for node in ast.walk(ast.parse(text)):
             if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 continue
-            if _decorator_names(node) & {"njit", "jit"} or _is_cli_command(path, node):
+            if _decorator_names(node) & {"njit", "jit"}:
                 continue
             length = node.end_lineno - node.lineno + 1
-            if length > MAX_FUNCTION_LINES:
+            if length > MAX_FUNCTION_LINES and node.name != "register":
                 out.append(f"{rel}:{node.lineno} {node.name}: {length} lines (max {MAX_FUNCTION_LINES})")
-            if _n_params(node) > MAX_PARAMETERS:
+            if _n_params(node) > MAX_PARAMETERS and not _is_cli_command(path, node):
                 out.append(f"{rel}:{node.lineno} {node.name}: {_n_params(node)} parameters (max {MAX_PARAMETERS})")
     return out
 

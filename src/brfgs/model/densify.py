@@ -38,7 +38,13 @@ class DensifyState:
 
 
 @torch.no_grad()
-def accumulate(state: DensifyState, means2d: torch.Tensor, visible: torch.Tensor, width: int, height: int) -> None:
+def accumulate(
+    state: DensifyState,
+    means2d: torch.Tensor,  # [N, 2] px, its .grad set by the backward pass
+    visible: torch.Tensor,  # [N] bool
+    width: int,
+    height: int,
+) -> None:
     """Add this step's screen-space gradient norms (pixels -> NDC) of visible Gaussians."""
     if means2d.grad is None:
         return

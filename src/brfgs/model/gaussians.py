@@ -24,15 +24,20 @@ Densification and pruning (:mod:`brfgs.model.densify`) act on every tensor row-w
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 import torch
+from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.spatial import Delaunay, cKDTree
+from torch import Tensor
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
 APPEARANCES = ("brf", "sh", "neural", "cir")
 
 
-def inverse_sigmoid(x: torch.Tensor | float) -> torch.Tensor:
+def inverse_sigmoid(x: Tensor | float) -> Tensor:  # same shape as x
+    """logit(x) = log(x / (1 - x)), float32."""
     x = torch.as_tensor(x, dtype=torch.float32)
     return torch.log(x / (1 - x))
 
@@ -96,10 +101,11 @@ class GaussianModel:
         self.appearance = appearance
 
 
-def knn_scale(points: np.ndarray, k: int = 3) -> np.ndarray:
-    """Mean distance to the k nearest neighbours of each point [P] (3DGS initial scale)."""
-    from scipy.spatial import cKDTree
-
+def knn_scale(
+    points: np.ndarray,  # [P, 3] m
+    k: int = 3,
+) -> np.ndarray:  # [P] m
+    """RMS distance to the k nearest neighbours of each point [P] (3DGS initial scale)."""
     p = np.asarray(points, np.float64)
     if p.shape[0] < 2:
         return np.ones(p.shape[0])
@@ -112,8 +118,8 @@ def knn_scale(points: np.ndarray, k: int = 3) -> np.ndarray:
 
 
 def init_from_points(
-    points: np.ndarray,
-    colors: np.ndarray,
+    points: np.ndarray,  # [P, 3] m (ENU)
+    colors: np.ndarray,  # [P, k] or [P] reflectance
     latent_dim: int,
     init_opacity: float = 0.1,
     scale_mult: float = 1.0,
@@ -121,7 +127,7 @@ def init_from_points(
     """Gaussians at sparse points ``[P, 3]`` with stage-1 colours ``[P, k]`` (reflectance).
 
     Scales are isotropic, the RMS distance to the 3 nearest neighbours; rotations identity;
-    opacity ``init_opacity``. Appearance tensors are added later (:meth:`GaussianModel.add_appearance`).
+    opacity ``init_opacity``. Appearance tensors are added later (:meth:`GaussianModel.set_head`).
     """
     pts = np.asarray(points, np.float32)
     col = np.asarray(colors, np.float32)
@@ -144,7 +150,7 @@ def init_from_points(
     return GaussianModel(params, "brf", latent_dim, col.shape[1])
 
 
-def scene_extent(points: np.ndarray) -> float:
+def scene_extent(points: np.ndarray) -> float:  # points [P, 3] m -> m
     """Half the diagonal of the 2-98 percentile box of the points (metres); the 3DGS 'scene scale'."""
     p = np.asarray(points, np.float64)
     lo = np.percentile(p, 2, axis=0)
@@ -152,7 +158,12 @@ def scene_extent(points: np.ndarray) -> float:
     return float(max(0.5 * math.sqrt(((hi - lo) ** 2).sum()), 1e-3))
 
 
-def surface_fill(points: np.ndarray, n_target: int, cover_xy: np.ndarray | None = None, keep=None) -> np.ndarray:
+def surface_fill(
+    points: np.ndarray,  # [P, 3] m
+    n_target: int,
+    cover_xy: np.ndarray | None = None,  # [Q, 2] m
+    keep: Callable[[np.ndarray], np.ndarray] | None = None,  # xyz [M, 3] -> bool [M]
+) -> np.ndarray:  # [M, 3] m
     """Extra points [M, 3] on a 2.5-D surface through the sparse points (denser start for short schedules).
 
     The sparse points' heights z(x, y) are interpolated linearly over their Delaunay
@@ -163,9 +174,6 @@ def surface_fill(points: np.ndarray, n_target: int, cover_xy: np.ndarray | None 
     those no training view sees). Suited to UAV scenes seen from above; 3D structure beyond a
     height field is left to densification.
     """
-    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
-    from scipy.spatial import Delaunay
-
     p = np.asarray(points, np.float64)
     if n_target <= 0 or p.shape[0] < 4:
         return np.zeros((0, 3))
