@@ -264,3 +264,25 @@ def plot_spectra(path: str | Path, wavelengths_nm: np.ndarray, reconstructed: np
     fig.savefig(path)
     plt.close(fig)
     return Path(path)
+
+
+def save_cir_comparison(path: str | Path, ref: np.ndarray, pred: np.ndarray, title: str) -> Path:
+    """Reference, render (CIR composites [H, W, 3]) and their mean absolute error side by side (PNG)."""
+    plt = _plt()
+    err = np.abs(np.nan_to_num(pred) - np.nan_to_num(ref)).mean(-1)
+    fig, ax = plt.subplots(1, 3, figsize=(10, 3.6))
+    ax[0].imshow(np.nan_to_num(np.clip(ref, 0, 1)))
+    ax[0].set_title("reference (CIR)")
+    ax[1].imshow(np.clip(pred, 0, 1))
+    ax[1].set_title("render (CIR)")
+    im = ax[2].imshow(err, cmap="magma", vmin=0, vmax=max(float(np.nanpercentile(err, 99)), 1e-3))
+    ax[2].set_title("|error| (mean of CIR channels)")
+    fig.colorbar(im, ax=ax[2], fraction=0.046)
+    for a in ax:
+        a.axis("off")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return Path(path)
