@@ -26,15 +26,21 @@ from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
 
-def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str = "auto",
+def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE) -> dict:
-    """Evaluate the trained model of ``out_dir`` on its test views; returns the metrics dict."""
+    """Evaluate the trained model of ``out_dir`` on its test views; returns the metrics dict.
+
+    ``backend`` None: the rasterizer backend the model was trained with (recorded in
+    metrics.json), so that the evaluation at the end of ``brfgs train`` and a later
+    ``brfgs evaluate`` give the same digits.
+    """
     out = Path(out_dir)
     mpath = out / model_file
     if not mpath.is_file():
         raise UserError(f"no {model_file}: train first (brfgs train SCENE {out})", file=out)
     lm = TrainedModel.load(mpath)
     cfg = lm.config
+    backend = backend or cfg.get("backend", "auto")
     root = Path(scene_path) if scene_path else Path(lm.scene["root"])
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
                        value_range=tuple(cfg["value_range"]))
@@ -83,6 +89,7 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
         "settings": {
             "config": cfg,
             "n_gaussians": lm.n_gaussians,
+            "backend": backend,
             "bands_used": len(scene.wavelengths_nm),
             "cir_indices": list(lm.cir_indices),
             "cir_wavelengths_nm": [float(scene.wavelengths_nm[j]) for j in lm.cir_indices],

@@ -70,7 +70,8 @@ def register(app: typer.Typer) -> None:
     def evaluate_cmd(
         out: Path = typer.Argument(..., help="Run folder of brfgs train."),
         scene: Path = typer.Option(None, "--scene", help="Scene folder (default: the one recorded in the model)."),
-        backend: str = typer.Option("auto", "--backend", help="Rasterizer backend."),
+        backend: str = typer.Option(None, "--backend", help="Rasterizer backend: auto | torch | cpu | cuda "
+                                    "(default: the one the model was trained with, so the digits match training's)."),
         images: bool = typer.Option(True, "--images/--no-images", help="Write ENVI renders and CIR PNGs."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:

@@ -14,6 +14,7 @@ Tensor name prefixes: ``param.`` Gaussian tensors, ``extra.`` non-per-Gaussian p
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -26,8 +27,18 @@ from brfgs.errors import UserError
 
 FORMAT = "brfgs-gaussians/1"
 # Version of the metadata layout. 1: files written before the version was recorded (same layout);
-# 2: ``schema_version`` recorded and validated on load.
+# 2: ``schema_version`` recorded and validated on load, a SHA-256 of the metadata and the tensors.
 SCHEMA_VERSION = 2
+
+
+def content_digest(tensors: dict[str, torch.Tensor], meta_json: str) -> str:
+    """SHA-256 (hex) of the metadata string and every tensor's name, dtype, shape and bytes."""
+    h = hashlib.sha256(meta_json.encode())
+    for name in sorted(tensors):
+        t = tensors[name].detach().contiguous().cpu()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy())
+    return h.hexdigest()
 
 
 def save(path: str | Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path:
@@ -36,9 +47,13 @@ def save(path: str | Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     clean = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
-    meta = {"schema_version": SCHEMA_VERSION, **meta}
-    save_file(clean, str(tmp), metadata={"format": FORMAT, "brfgs": json.dumps(meta)})
-    os.replace(tmp, path)
+    text = json.dumps({"schema_version": SCHEMA_VERSION, **meta})
+    try:
+        save_file(clean, str(tmp), metadata={"format": FORMAT, "brfgs": text, "sha256": content_digest(clean, text)})
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -57,6 +72,9 @@ def load(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:
         raise UserError(f"not a readable safetensors file ({exc})", file=path) from None
     if md.get("format") != FORMAT or "brfgs" not in md:
         raise UserError(f"not a brfgs model file (format {md.get('format')!r}, expected {FORMAT!r})", file=path)
+    if "sha256" in md and md["sha256"] != content_digest(tensors, md["brfgs"]):
+        raise UserError("the tensors or metadata do not match the file's checksum (a damaged file)", file=path,
+                        field="sha256")
     try:
         meta = json.loads(md["brfgs"])
     except (ValueError, RecursionError):

@@ -2,7 +2,8 @@
 
 ``OUT/`` holds config.json (the options, loadable by ``brfgs train --config``), split.json,
 bands.json, init/ (points, cameras, report), autoencoder.json, checkpoints/last.safetensors
-(resume state), checkpoints/stage1.safetensors, model.safetensors (final), train_log.csv
+and checkpoints/previous.safetensors (the newest two resume states: a damaged newest one is
+skipped), checkpoints/stage1.safetensors, model.safetensors (final), train_log.csv
 and run.json (status, phase, step). Rerunning on an unfinished folder resumes; a finished one
 is refused without ``overwrite``, and then only these outputs are removed.
 """
@@ -22,6 +23,7 @@ RUN_FILE = "run.json"
 CONFIG_FILE = "config.json"
 LOG_FILE = "train_log.csv"
 LAST_CKPT = "checkpoints/last.safetensors"
+PREVIOUS_CKPT = "checkpoints/previous.safetensors"
 STAGE1_CKPT = "checkpoints/stage1.safetensors"
 LOG_HEADER = ["phase", "step", "loss", "psnr", "n_gaussians"]
 OWNED_OUTPUTS = (CONFIG_FILE, "split.json", "bands.json", "autoencoder.json", LOG_FILE, RUN_FILE,
@@ -41,6 +43,7 @@ class RunFolder:
         self.out = Path(out)
         self.model = self.out / MODEL_FILE
         self.last_ckpt = self.out / LAST_CKPT
+        self.previous_ckpt = self.out / PREVIOUS_CKPT
         self.stage1_ckpt = self.out / STAGE1_CKPT
         self.log = self.out / LOG_FILE
 
@@ -53,20 +56,43 @@ class RunFolder:
                             "(or choose another output folder)", file=self.out)
         if status is not None and overwrite:
             self._remove_outputs()
-        elif status is None and self.out.exists() and any(self.out.iterdir()) and not self.last_ckpt.exists():
+        elif status is None and self.out.exists() and any(self.out.iterdir()) and not self.resume_points():
             foreign = [p.name for p in self.out.iterdir() if p.name not in OWNED_OUTPUTS]
             if foreign:
                 raise UserError(f"output folder is not empty and is not a brfgs run (contains {foreign[:5]}); "
                                 "choose an empty or new folder", file=self.out)
         self.out.mkdir(parents=True, exist_ok=True)
         config = self.out / CONFIG_FILE
-        if config.is_file() and self.last_ckpt.is_file():
+        if config.is_file() and self.resume_points():
             old, new = json.loads(config.read_text()), json.loads(cfg.to_json())
             if old != new:
                 diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
                 raise UserError(f"this unfinished run was started with different options ({', '.join(diff)}); "
                                 "rerun with the same options to resume, or pass --overwrite", file=config)
         config.write_text(json.dumps(cfg.to_dict(), indent=1, sort_keys=True))
+
+    def resume_points(self) -> list[Path]:
+        """Existing resume checkpoints, newest first."""
+        return [p for p in (self.last_ckpt, self.previous_ckpt) if p.is_file()]
+
+    def rotate_checkpoints(self) -> Path:
+        """Make room for a new newest checkpoint (the current one becomes the previous); returns its path."""
+        if self.last_ckpt.is_file():
+            self.last_ckpt.replace(self.previous_ckpt)
+        return self.last_ckpt
+
+    def truncate_log(self, keep) -> None:
+        """Drop the rows of train_log.csv for which ``keep(phase, step)`` is false (steps a resumed
+        run repeats), so that no (phase, step) appears twice."""
+        if not self.log.is_file():
+            return
+        with open(self.log, newline="") as fh:
+            rows = list(csv.reader(fh))
+        body = [r for r in rows[1:] if len(r) >= 2 and r[1].isdigit() and keep(r[0], int(r[1]))]
+        tmp = self.log.with_name(self.log.name + ".tmp")
+        with open(tmp, "w", newline="") as fh:
+            csv.writer(fh).writerows(rows[:1] + body)
+        tmp.replace(self.log)
 
     def _remove_outputs(self) -> None:
         """Remove only what a training run writes."""

@@ -72,15 +72,15 @@ class Trainer:
                                 value_range=tuple(self.cfg.value_range))
         st = self.state
         t0 = time.perf_counter()
-        if self.folder.last_ckpt.is_file():
-            self._resume(self.folder.last_ckpt)
+        if self.folder.resume_points():
+            self._resume()
             self.log(f"resuming {self.out} at {st.phase.value} step {st.step}")
         elif self.from_stage1 is not None:
             self._start_from_stage1(self.from_stage1)
-            st.save_checkpoint(self.folder.last_ckpt)
+            self._checkpoint()
         else:
             self.images = run_setup(st, self.scene, self.cfg, self.folder, self.progress, self.log)
-            st.save_checkpoint(self.folder.last_ckpt)
+            self._checkpoint()
         self._write_status("running")
         try:
             while st.phase != Phase.DONE:
@@ -90,9 +90,9 @@ class Trainer:
                 if st.phase == Phase.STAGE1:
                     st.save_checkpoint(self.folder.stage1_ckpt)
                 self._begin_phase(next_phase(self.phases, st.phase))
-                st.save_checkpoint(self.folder.last_ckpt)
+                self._checkpoint()
         except KeyboardInterrupt:
-            st.save_checkpoint(self.folder.last_ckpt)
+            self._checkpoint()
             self._write_status("interrupted")
             self.log(f"interrupted: checkpoint saved at {st.phase.value} step {st.step}; rerun the same command to resume")
             raise
@@ -109,9 +109,29 @@ class Trainer:
                                       self.cfg.cache_gib)
         return self.images
 
-    def _resume(self, path: Path) -> None:
-        tensors, meta = self.state.load_checkpoint(path)
-        self.state.load_training_state(tensors, meta)
+    def _checkpoint(self) -> None:
+        """Save the resume state (the newest two are kept) and show the progress in run.json."""
+        self.state.save_checkpoint(self.folder.rotate_checkpoints())
+        self._write_status("running")
+
+    def _resume(self) -> None:
+        """Continue from the newest resume checkpoint that loads (a damaged one is reported and
+        skipped), and drop the log rows of the steps that will be repeated."""
+        errors = []
+        for path in self.folder.resume_points():
+            try:
+                tensors, meta = self.state.load_checkpoint(path)
+            except UserError as exc:
+                errors.append(str(exc))
+                self.log(f"warning: skipping a damaged checkpoint: {exc}")
+                continue
+            self.state.load_training_state(tensors, meta)
+            order = [p.value for p, _ in self.phases] + [Phase.DONE.value]
+            at = (order.index(self.state.phase.value), self.state.step)
+            self.folder.truncate_log(lambda ph, step: ph in order and (order.index(ph), step) <= at)
+            return
+        raise UserError("no checkpoint of this run can be read (" + "; ".join(errors) + "); "
+                        "pass --overwrite to start again", file=self.folder.last_ckpt)
 
     def _start_from_stage1(self, path: Path) -> None:
         """A new run (another spectral variant) from the end of a decoupled run's stage 1."""
@@ -169,13 +189,14 @@ class Trainer:
                 self.history.append((phase.value, st.step, lv, ps))
                 if st.step % c.log_every == 0 or st.step == steps:
                     writer.writerow([phase.value, st.step, f"{lv:.6g}", f"{ps:.4f}", st.gaussians.n])
+                    self._write_status("running")
                 if bar is not None:
                     bar.update(1)
                     if st.step % 10 == 0:
                         bar.set_postfix(loss=f"{lv:.4f}", psnr=f"{ps:.2f}", n=st.gaussians.n)
                 if st.step % c.checkpoint_every == 0 and st.step < steps:
                     fh.flush()
-                    st.save_checkpoint(self.folder.last_ckpt)
+                    self._checkpoint()
                 if self.callback is not None:
                     self.callback(phase.value, st.step)
         if bar is not None:

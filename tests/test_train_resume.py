@@ -1,0 +1,91 @@
+"""Resume bookkeeping: the newest two checkpoints are kept and a damaged one is skipped, no log row
+is written twice, run.json shows the progress, and evaluation digits do not depend on the command."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+import torch
+
+from brfgs.cli import main
+from brfgs.errors import UserError
+from brfgs.model.io import load
+from brfgs.train.config import preset
+from brfgs.train.trainer import train
+from test_train_scene import make_plane_scene
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    torch.set_num_threads(1)
+    return make_plane_scene(tmp_path_factory.mktemp("resume") / "scene", w=48, h=32, n_bands=12)
+
+
+def _cfg(**kw):
+    return preset("tiny", **{"threads": 1, "stage1_steps": 12, "stage2_steps": 8, "checkpoint_every": 5, **kw})
+
+
+def _interrupt_at(phase_step, run=None, seen=None):
+    """Training callback: record run.json after every step (when ``seen``), Ctrl-C at ``phase_step``."""
+    def cb(phase, step):
+        if seen is not None:
+            seen.append(json.loads((run / "run.json").read_text()))
+        if (phase, step) == phase_step:
+            raise KeyboardInterrupt
+    return cb
+
+
+def _log_keys(run):
+    with open(run / "train_log.csv", newline="") as fh:
+        return [(r["phase"], int(r["step"])) for r in csv.DictReader(fh)]
+
+
+def test_damaged_newest_checkpoint_resumes_from_the_previous_one(scene, tmp_path):
+    ref = train(scene, tmp_path / "ref", _cfg(), progress=False, log=None)
+    run = tmp_path / "run"
+    seen = []
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, run, _cfg(), progress=False, callback=_interrupt_at(("stage2", 3), run, seen), log=None)
+    # run.json showed the phase and the step while the run was going
+    assert any(s["status"] == "running" and s["phase"] == "stage1" and s["step"] >= 5 for s in seen)
+    assert json.loads((run / "run.json").read_text())["status"] == "interrupted"
+    ckpts = run / "checkpoints"
+    assert (ckpts / "last.safetensors").is_file() and (ckpts / "previous.safetensors").is_file()
+    assert load(ckpts / "last.safetensors")[1]["step"] == 3
+    # damage the newest checkpoint's tensor bytes: it is detected, reported and skipped
+    data = bytearray((ckpts / "last.safetensors").read_bytes())
+    data[-100] ^= 0xFF
+    (ckpts / "last.safetensors").write_bytes(bytes(data))
+    messages = []
+    out = train(scene, run, _cfg(), progress=False, log=messages.append)
+    assert any("damaged checkpoint" in m and "last.safetensors" in m for m in messages), messages
+    ta, tb = load(ref)[0], load(out)[0]
+    assert ta.keys() == tb.keys() and all(torch.equal(ta[k], tb[k]) for k in ta)
+    # every (phase, step) row once, in order, as in the uninterrupted run
+    assert _log_keys(run) == _log_keys(tmp_path / "ref")
+    assert len(set(_log_keys(run))) == len(_log_keys(run))
+
+
+def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, run, _cfg(), progress=False, callback=_interrupt_at(("stage1", 7)), log=None)
+    for name in ("last.safetensors", "previous.safetensors"):
+        p = run / "checkpoints" / name
+        p.write_bytes(p.read_bytes()[:200])
+    with pytest.raises(UserError, match="no checkpoint of this run can be read"):
+        train(scene, run, _cfg(), progress=False, log=None)
+
+
+def test_evaluate_gives_the_digits_of_training(scene, tmp_path):
+    run = tmp_path / "run"
+    assert main(["train", str(scene), str(run), "--preset", "tiny", "--threads", "1", "--stage1-steps", "6",
+                 "--stage2-steps", "4", "--quiet"]) == 0
+    first = json.loads((run / "metrics.json").read_text())
+    assert first["settings"]["backend"] == "torch"  # the tiny preset's
+    assert main(["evaluate", str(run), "--quiet", "--no-images"]) == 0
+    again = json.loads((run / "metrics.json").read_text())
+    assert again["settings"]["backend"] == "torch"
+    assert again["against"] == first["against"]
