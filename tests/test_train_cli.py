@@ -128,3 +128,17 @@ def test_config_file_reruns_a_run_exactly(scene, tmp_path, capsys):
             assert field in err
     assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(a / "config.json"), "--preset", "fast"]) == 2
     assert not (tmp_path / "d").exists()
+
+
+def test_train_and_ablate_never_write_into_the_scene(scene, tmp_path, capsys):
+    from scenes import snapshot
+
+    before = snapshot(scene)
+    for args in (["train", str(scene), str(scene / "run"), *TINY],
+                 ["ablate", str(scene), str(scene / "abl"), "--study", "training", "--preset", "tiny", "--quiet"],
+                 ["train", str(scene), str(scene), *TINY]):
+        capsys.readouterr()
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert "inside the scene folder" in err and len(err.strip().splitlines()) == 1
+    assert snapshot(scene) == before

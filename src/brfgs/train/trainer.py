@@ -22,6 +22,7 @@ import torch
 from tqdm import tqdm
 
 from brfgs.data import read_scene
+from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
@@ -67,6 +68,7 @@ class Trainer:
         if self.cfg.threads > 0:
             torch.set_num_threads(self.cfg.threads)
             configure_threads(self.cfg.threads)
+        check_outside(self.out, self.scene_path)
         self.folder.prepare(self.cfg, self.overwrite)
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
                                 value_range=tuple(self.cfg.value_range))

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from brfgs.analysis.evaluate import evaluate_run
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
+from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train import TrainConfig, train
@@ -61,6 +62,7 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
            only: list[str] | None = None) -> dict:
     """Run (or resume) every run of ``study`` and write its tables; returns {"rows": [...], "paths": {...}}."""
     out = Path(out_dir)
+    check_outside(out, scene_path)
     out.mkdir(parents=True, exist_ok=True)
     runs = _runs(study, base)
     # runs that others start from go first

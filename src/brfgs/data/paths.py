@@ -1,0 +1,22 @@
+"""Where outputs may go: never inside an input folder (input data is never written to)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from brfgs.errors import UserError
+
+
+def inside(path: str | Path, folder: str | Path) -> bool:
+    """``path`` is ``folder`` or lies below it, after following links."""
+    try:
+        Path(path).resolve().relative_to(Path(folder).resolve())
+        return True
+    except ValueError:
+        return False
+
+
+def check_outside(out: str | Path, scene_root: str | Path) -> None:
+    """UserError when the output folder ``out`` is, or lies inside, the scene folder."""
+    if inside(out, scene_root):
+        raise UserError("output folder lies inside the scene folder; input data is never written to", file=out)
