@@ -89,3 +89,52 @@ def test_evaluate_gives_the_digits_of_training(scene, tmp_path):
     again = json.loads((run / "metrics.json").read_text())
     assert again["settings"]["backend"] == "torch"
     assert again["against"] == first["against"]
+
+
+def test_full_disk_is_one_line_exit_3_and_no_half_file(scene, tmp_path, capsys, monkeypatch):
+    """No space left while writing the model file: one line naming the path, exit status 3, no
+    model.safetensors (nor its temporary file) left behind; the checkpoints survive for a resume."""
+    import errno
+
+    import safetensors.torch
+
+    real = safetensors.torch.save_file
+
+    def full_disk(tensors, filename, metadata=None):
+        if "model" in str(filename):
+            with open(filename, "wb") as fh:  # a partly written file, then the disk is full
+                fh.write(b"\0" * 100)
+            raise OSError(errno.ENOSPC, "No space left on device", str(filename))
+        return real(tensors, filename, metadata=metadata)
+
+    monkeypatch.setattr("brfgs.model.io.save_file", full_disk)
+    run = tmp_path / "run"
+    args = ["train", str(scene), str(run), "--preset", "tiny", "--threads", "1", "--stage1-steps", "4",
+            "--stage2-steps", "2", "--quiet"]
+    assert main(args) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "No space left on device" in err and "model" in err
+    assert not (run / "model.safetensors").exists()
+    assert not [p for p in run.iterdir() if "partial" in p.name]
+    monkeypatch.setattr("brfgs.model.io.save_file", real)
+    assert main(args) == 0 and (run / "model.safetensors").is_file()
+
+
+def test_read_only_output_folder_is_exit_3(scene, tmp_path, capsys, monkeypatch):
+    """A read-only file system (EROFS; injected, since tests run as root, which ignores permissions)."""
+    import errno
+    import pathlib
+
+    ro = tmp_path / "ro"
+    real_mkdir = pathlib.Path.mkdir
+
+    def mkdir(self, *a, **k):
+        if str(self).startswith(str(ro)):
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    assert main(["train", str(scene), str(ro / "run"), "--preset", "tiny", "--quiet"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert err == f"brfgs: error: {ro / 'run'}: Read-only file system"
+    assert not ro.exists()

@@ -9,7 +9,6 @@ sam, psnr_spectral; "observed" = the test images, "truth" = the clean cubes of
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from tqdm import tqdm
 
 from brfgs.analysis import metrics as M
 from brfgs.analysis.plots import save_cir_comparison
-from brfgs.data import read_scene
+from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
@@ -105,7 +104,7 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     if views["truth"]:
         result["against"]["truth"] = {"mean": M.mean_metrics(views["truth"]), "views": views["truth"]}
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
-    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    atomic.write_json(out / "metrics.json", result)
     return result
 
 

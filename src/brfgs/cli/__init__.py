@@ -12,6 +12,7 @@ process exits with status 2.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import importlib.util
 import os
@@ -24,6 +25,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import typer
 
 from brfgs.errors import UserError
+
+# OSErrors that are the machine's or the user's to fix, not bugs: exit status 3, one line.
+STORAGE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EIO}
 
 app = typer.Typer(
     name="brfgs",
@@ -63,8 +67,11 @@ for _name in COMMAND_MODULES:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``brfgs`` console script; returns the exit status.
 
-    Usage errors (click) exit 2, user errors (:class:`UserError`) print one message and
-    exit 2, Ctrl-C exits 130 (long commands checkpoint before that).
+    Exit status: 0 success; 2 usage errors (click) and user errors (:class:`UserError`: one line
+    naming the file and the field); 3 a file could not be written or read for a storage reason
+    (no space left, read-only file system, permission denied, I/O error: one line naming the path;
+    results are written under temporary names and renamed into place, so no half file is left);
+    130 Ctrl-C (long commands checkpoint before that).
     """
     try:
         app(args=argv, prog_name="brfgs")
@@ -77,4 +84,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("brfgs: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in STORAGE_ERRNOS:
+            raise
+        where = exc.filename or "(unknown path)"
+        print(f"brfgs: error: {where}: {exc.strerror or os.strerror(exc.errno)}", file=sys.stderr)
+        return 3
     return 0

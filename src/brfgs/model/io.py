@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
+from brfgs.data.atomic import atomic_path
 from brfgs.errors import UserError
 
 FORMAT = "brfgs-gaussians/1"
@@ -42,19 +42,13 @@ def content_digest(tensors: dict[str, torch.Tensor], meta_json: str) -> str:
 
 
 def save(path: str | Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path:
-    """Atomically write ``tensors`` + JSON ``meta`` (with the schema version) to ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
+    """Write ``tensors`` + JSON ``meta`` (with the schema version and a checksum) to ``path``
+    atomically (:func:`brfgs.data.atomic.atomic_path`)."""
     clean = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
     text = json.dumps({"schema_version": SCHEMA_VERSION, **meta})
-    try:
+    with atomic_path(path) as tmp:
         save_file(clean, str(tmp), metadata={"format": FORMAT, "brfgs": text, "sha256": content_digest(clean, text)})
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return Path(path)
 
 
 def load(path: str | Path) -> tuple[dict[str, torch.Tensor], dict]:

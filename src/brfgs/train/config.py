@@ -51,8 +51,7 @@ class TrainConfig:
     downscale: int = _opt(1, "Integer area-average factor applied when reading cubes.")
     value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes.")
     latent_dim: int = _opt(16, "Latent size d of the spectral autoencoder (<= 32).")
-    ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400: half the spectral angle of 800 on the truth of "
-                         "the 128² testsite for about a minute more; docs/results.md, Session 4).")
+    ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
     stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")

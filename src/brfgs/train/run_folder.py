@@ -15,6 +15,7 @@ import json
 import shutil
 from pathlib import Path
 
+from brfgs.data import atomic
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train.config import TrainConfig
@@ -69,7 +70,7 @@ class RunFolder:
                 diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
                 raise UserError(f"this unfinished run was started with different options ({', '.join(diff)}); "
                                 "rerun with the same options to resume, or pass --overwrite", file=config)
-        config.write_text(json.dumps(cfg.to_dict(), indent=1, sort_keys=True))
+        atomic.write_json(config, cfg.to_dict(), sort_keys=True)
 
     def resume_points(self) -> list[Path]:
         """Existing resume checkpoints, newest first."""
@@ -89,10 +90,8 @@ class RunFolder:
         with open(self.log, newline="") as fh:
             rows = list(csv.reader(fh))
         body = [r for r in rows[1:] if len(r) >= 2 and r[1].isdigit() and keep(r[0], int(r[1]))]
-        tmp = self.log.with_name(self.log.name + ".tmp")
-        with open(tmp, "w", newline="") as fh:
+        with atomic.atomic_path(self.log) as tmp, open(tmp, "w", newline="") as fh:
             csv.writer(fh).writerows(rows[:1] + body)
-        tmp.replace(self.log)
 
     def _remove_outputs(self) -> None:
         """Remove only what a training run writes."""
@@ -105,15 +104,11 @@ class RunFolder:
 
     def write_json(self, name: str, obj) -> Path:
         """Write ``obj`` as indented JSON to ``out/name``."""
-        path = self.out / name
-        path.write_text(json.dumps(obj, indent=1))
-        return path
+        return atomic.write_json(self.out / name, obj)
 
     def write_status(self, info: dict) -> None:
         """Atomically replace run.json with ``info``."""
-        tmp = self.out / (RUN_FILE + ".tmp")
-        tmp.write_text(json.dumps(info, indent=1))
-        tmp.replace(self.out / RUN_FILE)
+        atomic.write_json(self.out / RUN_FILE, info)
 
     def open_log(self):
         """(file handle, csv writer) appending to train_log.csv, the header written once."""

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from brfgs.analysis.evaluate import evaluate_run
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
+from brfgs.data import atomic
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
@@ -109,7 +110,7 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
     """OUT/table_<study>.csv (every column) and .md (the paper's columns)."""
     cols = sorted({k for r in rows for k in r}, key=lambda k: (k not in ("run", "setting"), k))
     csv_path = out / f"table_{study}.csv"
-    with open(csv_path, "w", newline="") as fh:
+    with atomic.atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
         w.writeheader()
         for r in rows:
@@ -133,5 +134,5 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     md_path = out / f"table_{study}.md"
-    md_path.write_text("\n".join(lines))
+    atomic.write_text(md_path, "\n".join(lines))
     return {"csv": str(csv_path), "md": str(md_path)}

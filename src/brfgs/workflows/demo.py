@@ -3,13 +3,13 @@ geometry, evaluate both on the test views, and write a report of where every out
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
 from brfgs.analysis.evaluate import evaluate_run, summary_lines
+from brfgs.data import atomic
 from brfgs.model import MODEL_FILE
 from brfgs.train import preset, train
 from brfgs.train.run_folder import STAGE1_CKPT, run_status
@@ -82,7 +82,7 @@ def run_demo(out: Path, dc: DemoConfig, progress: bool = True, say: Callable[...
     res_s = evaluate_run(sh, scene, backend=cfg.backend, progress=progress)
     total = time.perf_counter() - t0
     report = "\n".join(_report_lines(out, res_b, res_s, cfg.latent_dim, total, t_sim))
-    (out / "report.txt").write_text(report + "\n")
-    (out / "report.json").write_text(json.dumps({"brfgs": res_b["against"], "sh": res_s["against"],
-                                                 "seconds": total, "simulation_seconds": t_sim}, indent=1))
+    atomic.write_text(out / "report.txt", report + "\n")
+    atomic.write_json(out / "report.json", {"brfgs": res_b["against"], "sh": res_s["against"], "seconds": total,
+                                            "simulation_seconds": t_sim})
     return report
