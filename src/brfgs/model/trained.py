@@ -59,6 +59,8 @@ class TrainedModel:
     neural: NeuralHead | None = None
     meta: dict = field(default_factory=dict)
     source: str | None = None
+    # (tensor identities and versions, detached tensors) of frozen(); not part of the model
+    _frozen: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     # -- description ----------------------------------------------------------------
     @property
@@ -171,15 +173,14 @@ class TrainedModel:
         """Detached tensors computed once: means, scales, max_scale, quats, opacities and the
         head parameters (recomputed when a tensor of ``gaussians.params`` is replaced or edited)."""
         key = tuple((k, id(v), v._version) for k, v in sorted(self.gaussians.params.items()))
-        cache = self.__dict__.get("_frozen")
-        if cache is None or cache[0] != key:
+        if self._frozen is None or self._frozen[0] != key:
             m = self.gaussians
             f = {k: v.detach() for k, v in m.params.items()}
             f["scales"] = m.scales.detach()
             f["max_scale"] = f["scales"].max(1).values
             f["opacities"] = m.opacities.detach()
-            self.__dict__["_frozen"] = cache = (key, f)
-        return cache[1]
+            self._frozen = (key, f)
+        return self._frozen[1]
 
     def head_params(self, idx: Tensor | None = None) -> dict[str, Tensor]:
         """Appearance tensors the head reads, rows ``idx`` (all if None)."""
