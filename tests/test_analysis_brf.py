@@ -9,10 +9,10 @@ import pytest
 
 from brfgs.analysis import brf as B
 from brfgs.analysis import views as V
-from brfgs.analysis.renderer import render_view
 from brfgs.analysis.roi import PolygonROI, roi_from_view_mask, unproject_depth
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
+from brfgs.model import camera_from_intrinsics, render
 from test_analysis_helpers import carpet_model
 
 ZL = np.array([0.10, 0.20, 0.30, 0.40])
@@ -67,7 +67,7 @@ def test_box_roi_of_a_view_returns_its_material():
     bm = carpet_model(z_left=ZL, z_right=ZR, components=("iso",))
     fr = bm.frame("v0")                                    # nadir; image x (columns) = east
     c2w = np.asarray(fr["c2w"])
-    rv = render_view(bm, c2w, bm.intrinsics, decode=False, want_normals=False, backend="cpu")
+    rv = render(bm, camera_from_intrinsics(c2w, bm.intrinsics), decode=False, backend="cpu")
     mask = np.zeros((bm.intrinsics.h, bm.intrinsics.w), bool)
     mask[10:22, 2:9] = True                                # west part of the image
     roi = roi_from_view_mask(mask, rv.depth, c2w, bm.intrinsics)
@@ -108,7 +108,7 @@ def _write_scene_from_model(root, bm, with_truth: bool):
     frames = []
     for fr in bm.frames:
         c2w = np.asarray(fr["c2w"])
-        rv = render_view(bm, c2w, intr, backend="cpu")
+        rv = render(bm, camera_from_intrinsics(c2w, intr), backend="cpu")
         write_envi(root / "images" / f"{fr['name']}.hdr", rv.cube, bm.wavelengths_nm)
         if with_truth:
             write_envi(root / "truth" / "images" / f"{fr['name']}.hdr", rv.cube, bm.wavelengths_nm)

@@ -6,8 +6,8 @@ import numpy as np
 import torch
 
 from brfgs.analysis.export import SH_C0, STANDARD_PROPERTIES, read_ply, write_ply
-from brfgs.analysis.renderer import load_model, render_view
 from brfgs.brdf.head import roughness_from_raw
+from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from test_analysis_helpers import carpet_model, write_model_file
 
 
@@ -17,7 +17,7 @@ def test_ply_round_trip_with_standard_names(tmp_path):
     bm = carpet_model(half_m=3.0, n_bands=4, vol=0.2, geo=0.1, spec=0.3)
     g = torch.Generator().manual_seed(0)
     q = torch.randn(bm.n_gaussians, 4, generator=g)
-    bm.model.params["quats"] = q * 3.0                       # unnormalised on purpose
+    bm.gaussians.params["quats"] = q * 3.0                       # unnormalised on purpose
     colours = np.random.default_rng(1).random((bm.n_gaussians, 3)).astype(np.float32)
     path = write_ply(tmp_path / "g.ply", bm, colours=colours)
     ply = PlyData.read(str(path))
@@ -25,7 +25,7 @@ def test_ply_round_trip_with_standard_names(tmp_path):
     assert names[: len(STANDARD_PROPERTIES)] == STANDARD_PROPERTIES
     assert all(ply["vertex"].data[n].dtype == np.float32 for n in names)
     v = read_ply(path)
-    p = bm.model.params
+    p = bm.gaussians.params
     np.testing.assert_array_equal(np.c_[v["x"], v["y"], v["z"]], p["means"].numpy())
     np.testing.assert_array_equal(np.c_[v["scale_0"], v["scale_1"], v["scale_2"]], p["log_scales"].numpy())
     np.testing.assert_array_equal(v["opacity"], p["opacity_logits"].numpy())
@@ -43,9 +43,9 @@ def test_ply_round_trip_with_standard_names(tmp_path):
 
 def test_default_ply_colours_are_the_cir_composite(tmp_path):
     bm = carpet_model(half_m=2.0, n_bands=4, components=("iso",))
-    bm.cir_scale = np.array([0.8, 0.5, 0.6])
+    bm.meta["cir_scale"] = [0.8, 0.5, 0.6]
     v = read_ply(write_ply(tmp_path / "g.ply", bm))
-    z = bm.model.params["z_iso"].numpy()
+    z = bm.gaussians.params["z_iso"].numpy()
     want = np.clip(z[:, list(bm.cir_indices)] / bm.cir_scale, 0, 1)
     np.testing.assert_allclose(np.c_[v["f_dc_0"], v["f_dc_1"], v["f_dc_2"]] * SH_C0 + 0.5, want, atol=1e-6)
 
@@ -53,11 +53,11 @@ def test_default_ply_colours_are_the_cir_composite(tmp_path):
 def test_model_file_loads_without_scene_and_renders_the_same(tmp_path):
     bm = carpet_model(half_m=6.0, n_bands=8, geo=0.2, spec=0.4)
     path = write_model_file(tmp_path / "run" / "model.safetensors", bm)
-    lm = load_model(tmp_path / "run")
+    lm = TrainedModel.load(tmp_path / "run")
     assert lm.n_gaussians == bm.n_gaussians and lm.head_cfg.components == bm.head_cfg.components
     c2w = np.asarray(bm.frames[2]["c2w"])
-    a = render_view(bm, c2w, bm.intrinsics, backend="cpu")
-    b = render_view(lm, c2w, lm.intrinsics, backend="cpu")
+    a = render(bm, camera_from_intrinsics(c2w, bm.intrinsics), backend="cpu")
+    b = render(lm, camera_from_intrinsics(c2w, lm.intrinsics), backend="cpu")
     np.testing.assert_allclose(b.cube, a.cube, atol=1e-6)
     np.testing.assert_allclose(b.depth, a.depth, atol=1e-5)
     assert path.stat().st_size > 0
@@ -97,7 +97,7 @@ def test_ply_sh_fit_reproduces_the_view_dependent_cir_colour(tmp_path):
 
     bm = carpet_model(half_m=2.0, n_bands=4, z_left=[0.1, 0.2, 0.3, 0.4], z_right=[0.1, 0.2, 0.3, 0.4],
                       vol=0.3, geo=0.1, components=("iso", "vol", "geo"))
-    bm.cir_scale = np.array([0.6, 0.5, 0.3])
+    bm.meta["cir_scale"] = [0.6, 0.5, 0.3]
     info = {}
     v = read_ply(write_ply(tmp_path / "g.ply", bm, info=info))
     assert info["rms_residual"] < 0.03 and info["n_directions"] == 48

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from brfgs.analysis import roi as R
+from brfgs.analysis import roi_spec
 from brfgs.cli import main
 from brfgs.errors import UserError
 from test_analysis_helpers import carpet_model, write_model_file
@@ -42,14 +43,14 @@ def test_geojson_selects_the_same_gaussians_as_the_text_polygon(tmp_path, layout
            "collection": {"type": "FeatureCollection",
                           "features": [{"type": "Feature", "properties": {}, "geometry": geom}]}}[layout]
     path = _write(tmp_path / "roi.geojson", obj)
-    spec = R.parse_roi_spec(f"geojson:{path}" if layout == "prefix" else str(path))
-    ref = R.parse_roi_spec(TEXT)
+    spec = roi_spec.parse_roi_spec(f"geojson:{path}" if layout == "prefix" else str(path))
+    ref = roi_spec.parse_roi_spec(TEXT)
     assert spec.kind == "polygon"
     assert spec.name == ("east" if layout == "feature" else "roi")
     np.testing.assert_array_equal(spec.polygon_xy_m, ref.polygon_xy_m)
     a = R.PolygonROI(spec.polygon_xy_m, polygons=spec.polygons, source=spec.source)
     b = R.PolygonROI(ref.polygon_xy_m)
-    means = carpet_model(half_m=12.0).model.means.double().numpy()
+    means = carpet_model(half_m=12.0).gaussians.means.double().numpy()
     np.testing.assert_array_equal(a.contains(means), b.contains(means))
     assert a.contains(means).sum() == 6 * 10                      # 1 m carpet: 6 x 10 Gaussian centres
     np.testing.assert_allclose(a.centre_m, b.centre_m)
@@ -62,7 +63,7 @@ def test_multipolygon_with_hole_and_feature_union(tmp_path):
     hole = [[4.0, 4.0], [6.0, 4.0], [6.0, 6.0], [4.0, 6.0]]
     far = [[20.0, 0.0], [22.0, 0.0], [22.0, 2.0], [20.0, 2.0]]
     mp = {"type": "MultiPolygon", "coordinates": [[outer + [outer[0]], hole + [hole[0]]], [far + [far[0]]]]}
-    spec = R.parse_roi_spec(str(_write(tmp_path / "mp.json", mp)))
+    spec = roi_spec.parse_roi_spec(str(_write(tmp_path / "mp.json", mp)))
     roi = R.PolygonROI(spec.polygon_xy_m, polygons=spec.polygons)
     pts = np.array([[1.0, 1.0, 0], [5.0, 5.0, 0], [21.0, 1.0, 0], [15.0, 1.0, 0], [9.5, 9.5, 3.0]])
     assert roi.contains(pts).tolist() == [True, False, True, False, True]
@@ -71,7 +72,7 @@ def test_multipolygon_with_hole_and_feature_union(tmp_path):
     fc = {"type": "FeatureCollection", "features": [
         {"type": "Feature", "properties": None, "geometry": _poly(outer)},
         {"type": "Feature", "properties": None, "geometry": _poly([[5.0, 5.0], [15.0, 5.0], [15.0, 15.0], [5.0, 15.0]])}]}
-    spec = R.parse_roi_spec(str(_write(tmp_path / "fc.geojson", fc)))
+    spec = roi_spec.parse_roi_spec(str(_write(tmp_path / "fc.geojson", fc)))
     roi = R.PolygonROI(spec.polygon_xy_m, polygons=spec.polygons)
     assert roi.contains(np.array([[7.0, 7.0, 0], [12.0, 12.0, 0], [2.0, 2.0, 0], [2.0, 12.0, 0]])).tolist() == \
         [True, True, True, False]
@@ -80,14 +81,14 @@ def test_multipolygon_with_hole_and_feature_union(tmp_path):
 def test_crs_must_be_local(tmp_path):
     geom = _poly(SQUARE)
     ok = dict(geom, crs={"type": "name", "properties": {"name": "local-ENU"}})
-    assert R.parse_roi_spec(str(_write(tmp_path / "ok.geojson", ok))).kind == "polygon"
-    assert R.parse_roi_spec(str(_write(tmp_path / "null.geojson", dict(geom, crs=None)))).kind == "polygon"
+    assert roi_spec.parse_roi_spec(str(_write(tmp_path / "ok.geojson", ok))).kind == "polygon"
+    assert roi_spec.parse_roi_spec(str(_write(tmp_path / "null.geojson", dict(geom, crs=None)))).kind == "polygon"
     for crs in ({"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32650"}},
                 {"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}},
                 {"type": "link", "properties": {"href": "http://example.com/crs/42"}}):
         bad = _write(tmp_path / "bad.geojson", {"type": "Feature", "properties": {}, "geometry": geom, "crs": crs})
         with pytest.raises(UserError, match="local ENU") as e:
-            R.parse_roi_spec(str(bad))
+            roi_spec.parse_roi_spec(str(bad))
         assert e.value.file == str(bad) and e.value.field == "crs"
 
 

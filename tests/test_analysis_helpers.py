@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from brfgs.analysis.renderer import BRFModel
 from brfgs.brdf.head import HeadConfig, raw_from_roughness
 from brfgs.data.cameras import Intrinsics, pose_from_view_angles
+from brfgs.model import TrainedModel
 from brfgs.model.gaussians import GaussianModel
+from brfgs.spectral.autoencoder import SpectralAutoencoder
+from brfgs.train.config import preset
 
 
 class IdentityDecoder:
@@ -20,7 +22,7 @@ class IdentityDecoder:
 
 def carpet_model(half_m: float = 20.0, spacing_m: float = 1.0, n_bands: int = 4, *, z_left=None, z_right=None,
                  vol: float = 0.0, geo: float = 0.0, spec: float = 0.0, components=("iso", "vol", "geo", "spec"),
-                 sun=(35.0, 150.0), height_fn=None, roughness: float = 0.3) -> BRFModel:
+                 sun=(35.0, 150.0), height_fn=None, roughness: float = 0.3) -> TrainedModel:
     """Flat carpet of Gaussians at z = 0 over [-half, half]², spacing ``spacing_m``.
 
     Latent = reflectance (identity decoder). z_iso is ``z_left`` for x < 0 and ``z_right``
@@ -59,17 +61,18 @@ def carpet_model(half_m: float = 20.0, spacing_m: float = 1.0, n_bands: int = 4,
         frames.append({"name": f"v{k}", "split": "train" if k < 3 else "test",
                        "c2w": pose_from_view_angles(zen, az, 60.0).tolist(),
                        "view_zenith_deg": zen, "view_azimuth_deg": az})
-    return BRFModel(model=gm, head_cfg=HeadConfig(kind="hybrid", components=tuple(components)),
-                    decoder=IdentityDecoder(), wavelengths_nm=np.linspace(480.0, 860.0, n_bands),
-                    sun_zenith_deg=float(sun[0]), sun_azimuth_deg=float(sun[1]), intrinsics=intr, frames=frames,
-                    cir_indices=(n_bands - 1, n_bands // 2, 0), cir_scale=np.ones(3))
+    scene = {"name": "scene", "root": None, "wavelengths_nm": np.linspace(480.0, 860.0, n_bands).tolist(),
+             "fwhm_nm": None, "sun_zenith_deg": float(sun[0]), "sun_azimuth_deg": float(sun[1]),
+             "intrinsics": {"fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h},
+             "downscale": 1, "roi": None, "split": {}, "frames": frames}
+    return TrainedModel(gaussians=gm, head_cfg=HeadConfig(kind="hybrid", components=tuple(components)),
+                        decoder=IdentityDecoder(), scene=scene, config={"variant": "brf"},
+                        meta={"cir_indices": [n_bands - 1, n_bands // 2, 0], "cir_scale": [1.0, 1.0, 1.0]})
 
 
-def linear_autoencoder(n_bands: int):
+def linear_autoencoder(n_bands: int) -> SpectralAutoencoder:
     """A SpectralAutoencoder whose decoder is exactly the identity (d = B): linear path = I,
     convolutional residual zero (its last layer is zero-initialised), no normalisation."""
-    from brfgs.spectral.autoencoder import SpectralAutoencoder
-
     ae = SpectralAutoencoder(n_bands, latent_dim=n_bands)
     with torch.no_grad():
         ae.dec_lin.weight.copy_(torch.eye(n_bands))
@@ -78,32 +81,16 @@ def linear_autoencoder(n_bands: int):
     return ae
 
 
-def write_model_file(path, bm: BRFModel, scene_root=None):
-    """Write ``bm`` (identity decoder) as a trainer model file (brfgs.train.checkpoint format)."""
-    import json
-
-    from brfgs.spectral.autoencoder import autoencoder_state
-    from brfgs.train import checkpoint as ckpt
-    from brfgs.train.config import preset
-
-    d = bm.model.latent_dim
-    nb = len(bm.wavelengths_nm)
+def write_model_file(path, tm: TrainedModel, scene_root=None):
+    """Write ``tm`` (identity decoder) as a model file: the same Gaussians, head, sun, cameras and CIR
+    bands, a linear autoencoder whose decoder is the identity, a zero background, tiny training options."""
+    d = tm.gaussians.latent_dim
+    nb = len(tm.wavelengths_nm)
     assert d == nb
-    ae = linear_autoencoder(nb)
-    cfg = preset("tiny", latent_dim=d, components=tuple(bm.head_cfg.components))
-    intr = bm.intrinsics
-    scene = {"name": bm.scene_name, "root": str(scene_root) if scene_root else "/nonexistent/scene",
-             "wavelengths_nm": [float(w) for w in bm.wavelengths_nm], "fwhm_nm": None,
-             "sun_zenith_deg": bm.sun_zenith_deg, "sun_azimuth_deg": bm.sun_azimuth_deg,
-             "intrinsics": {"fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h},
-             "downscale": 1, "roi": None, "split": {}, "frames": bm.frames}
-    tensors = ckpt.prefixed(bm.model.state(), "param.")
-    tensors["extra.bg_latent"] = torch.zeros(d)
-    t, m = autoencoder_state(ae, "decoder.")
-    tensors.update(t)
-    meta = {"config": cfg.to_dict(), "scene": scene, "appearance": "brf", "latent_dim": d, "n_colors": 1,
-            "cir_indices": list(bm.cir_indices), "cir_scale": [float(v) for v in bm.cir_scale],
-            "autoencoder": m["autoencoder"], "head": bm.head_cfg.to_dict(), "phase": "done", "step": 0,
-            "extent_m": 20.0}
-    json.dumps(meta)
-    return ckpt.save(path, tensors, meta)
+    cfg = preset("tiny", latent_dim=d, components=tuple(tm.head_cfg.components))
+    scene = dict(tm.scene, root=str(scene_root) if scene_root else "/nonexistent/scene")
+    meta = {"cir_indices": list(tm.cir_indices), "cir_scale": [float(v) for v in tm.cir_scale], "phase": "done",
+            "step": 0, "extent_m": 20.0}
+    out = TrainedModel(gaussians=tm.gaussians, head_cfg=tm.head_cfg, decoder=linear_autoencoder(nb), scene=scene,
+                       config=cfg.to_dict(), extra={"bg_latent": torch.zeros(d)}, meta=meta)
+    return out.save(path)

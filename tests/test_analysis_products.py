@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from brfgs.analysis import products as P
+from brfgs.model import camera_from_intrinsics
 from test_analysis_helpers import carpet_model
 
 Z = np.array([0.45, 0.30, 0.12, 0.60])
@@ -18,7 +19,7 @@ Z = np.array([0.45, 0.30, 0.12, 0.60])
 def test_iso_only_gaussians_have_nbar_and_albedo_equal_to_z_iso(components):
     """With only z_iso (other coefficients zero or absent) NBAR and both albedos are z_iso exactly."""
     bm = carpet_model(half_m=2.0, z_left=Z, z_right=Z * 0.5, components=components)
-    z_iso = bm.model.params["z_iso"].detach()
+    z_iso = bm.gaussians.params["z_iso"].detach()
     for sz in (0.0, 30.0, 60.0):
         assert torch.equal(P.nbar_latent(bm, sz), z_iso)
         assert torch.equal(P.albedo_latent(bm, "black", sz), z_iso)
@@ -28,7 +29,7 @@ def test_iso_only_gaussians_have_nbar_and_albedo_equal_to_z_iso(components):
 def test_rendered_products_of_an_isotropic_surface():
     bm = carpet_model(half_m=12.0, z_left=Z, z_right=Z, components=("iso", "vol", "geo", "spec"))
     c2w, intr = P.nadir_camera(bm, size=16, half_extent_m=6.0)
-    out = P.render_products(bm, c2w, intr, nbar_sun_zenith_deg=20.0, albedo_sun_zenith_deg=50.0, backend="cpu")
+    out = P.render_products(bm, camera_from_intrinsics(c2w, intr), nbar_sun_zenith_deg=20.0, albedo_sun_zenith_deg=50.0, backend="cpu")
     alpha = out["alpha"]
     assert alpha.min() > 0.995
     for name in ("iso", "total", "nbar", "bsa", "wsa"):
@@ -67,7 +68,7 @@ def test_spec_integral_table_matches_direct_integrals():
 def test_contributions_add_up_and_anix_of_a_hotspot_surface():
     bm = carpet_model(half_m=12.0, z_left=Z, z_right=Z, vol=0.3, geo=0.15, components=("iso", "vol", "geo"))
     c2w, intr = P.nadir_camera(bm, size=12, half_extent_m=5.0)
-    out = P.render_products(bm, c2w, intr, which=("contributions", "anix"), backend="cpu")
+    out = P.render_products(bm, camera_from_intrinsics(c2w, intr), which=("contributions", "anix"), backend="cpu")
     np.testing.assert_allclose(out["iso"] + out["vol"] + out["geo"], out["total"], atol=1e-6)
     assert (out["anix"] > 1.05).all()
 

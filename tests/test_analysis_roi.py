@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from brfgs.analysis import roi as R
-from brfgs.analysis.renderer import render_view
+from brfgs.analysis import roi_spec
 from brfgs.data.cameras import Intrinsics, pixel_rays, pose_from_view_angles, project_points
 from brfgs.errors import UserError
+from brfgs.model import camera_from_intrinsics, render
 from test_analysis_helpers import carpet_model
 
 
@@ -55,7 +56,7 @@ def test_box_in_oblique_view_projects_onto_the_right_ground_area():
     c2w = np.asarray(fr["c2w"])
     intr = Intrinsics.from_fov(40.0, 32, 32)
     bm.intrinsics = intr
-    rv = render_view(bm, c2w, intr, decode=False, want_normals=False, backend="cpu")
+    rv = render(bm, camera_from_intrinsics(c2w, intr), decode=False, backend="cpu")
     mask = np.zeros((32, 32), bool)
     mask[8:14, 18:27] = True                             # rows 8..13, cols 18..26
     roi = R.roi_from_view_mask(mask, rv.depth, c2w, intr, name="box")
@@ -106,12 +107,12 @@ def test_material_points_from_truth_maps(tmp_path):
                                  "polygon:0,0;1,nan;2,2", "material:"])
 def test_bad_roi_specs_are_user_errors(bad):
     with pytest.raises(UserError):
-        R.parse_roi_spec(bad)
+        roi_spec.parse_roi_spec(bad)
 
 
 def test_roi_spec_parsing():
-    s = R.parse_roi_spec("polygon:0,0;10,0;10,5")
+    s = roi_spec.parse_roi_spec("polygon:0,0;10,0;10,5")
     assert s.kind == "polygon" and s.polygon_xy_m.shape == (3, 2)
-    s = R.parse_roi_spec("box:view_03:1,2,10,12")
+    s = roi_spec.parse_roi_spec("box:view_03:1,2,10,12")
     assert (s.kind, s.view, s.box) == ("box", "view_03", (1, 2, 10, 12))
-    assert R.parse_roi_spec("material:water").material == "water"
+    assert roi_spec.parse_roi_spec("material:water").material == "water"

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from brfgs.analysis.brf import has_simulator_truth, truth_brf
+from brfgs.analysis.truth import has_simulator_truth, truth_brf
 from brfgs.analysis.roi import PolygonROI
 
 
@@ -30,7 +30,7 @@ def test_truth_brf_of_a_lambertian_field_is_isotropic_and_the_soil_spectrum(tmp_
 
 
 def test_check_truth_spp_follows_the_scenes_sampler(tmp_path):
-    from brfgs.analysis.brf import check_truth_spp
+    from brfgs.analysis.truth import check_truth_spp
     from brfgs.errors import UserError
 
     (tmp_path / "truth").mkdir()

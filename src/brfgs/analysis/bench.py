@@ -15,22 +15,28 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
+from typing import Callable
 
+import numba
 import numpy as np
 import torch
 
-from brfgs.analysis.renderer import BRFModel, load_model, render_view, torch_threads
+from brfgs.analysis.brf import auto_roi_size, polar_map
+from brfgs.analysis.roi import PolygonROI
+from brfgs.analysis.threads import torch_threads
+from brfgs.analysis.views import intrinsics_json, view_camera
+from brfgs.brdf.head import HeadConfig, init_head_params
+from brfgs.data.cameras import Intrinsics, pose_from_view_angles
+from brfgs.model import TrainedModel, camera_from_intrinsics, render
+from brfgs.model.gaussians import GaussianModel
+from brfgs.spectral.autoencoder import SpectralAutoencoder
 
 __all__ = ["synthetic_model", "bench_analysis"]
 
 
-def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: int = 16, seed: int = 0) -> BRFModel:
-    """A deterministic synthetic BRF-GS model (hybrid head with all four terms) for timing."""
-    from brfgs.brdf.head import HeadConfig, init_head_params
-    from brfgs.data.cameras import Intrinsics, pose_from_view_angles
-    from brfgs.model.gaussians import GaussianModel
-    from brfgs.spectral.autoencoder import SpectralAutoencoder
-
+def _synthetic_gaussians(n_gaussians: int, latent_dim: int, seed: int) -> tuple[GaussianModel, HeadConfig]:
+    """Ground (80 %) on an undulating 120 m square and 40 tree crowns (20 %), hybrid head (all terms)."""
     rng = np.random.default_rng(seed)
     n_ground = int(0.8 * n_gaussians)
     xy = rng.uniform(-60, 60, (n_ground, 2))
@@ -56,76 +62,90 @@ def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: i
     gm = GaussianModel(params, "brf", latent_dim, 3)
     for v in gm.params.values():
         v.requires_grad_(False)
+    return gm, cfg
+
+
+def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: int = 16, seed: int = 0
+                    ) -> TrainedModel:
+    """A deterministic synthetic BRF-GS model (hybrid head with all four terms) for timing."""
+    gm, cfg = _synthetic_gaussians(n_gaussians, latent_dim, seed)
     torch.manual_seed(seed)
     ae = SpectralAutoencoder(n_bands, latent_dim).eval()
     intr = Intrinsics.from_fov(35.0, 128, 128)
     frames = [{"name": f"v{i}", "split": "train", "c2w": pose_from_view_angles(z_, a_, 190.0).tolist(),
                "view_zenith_deg": z_, "view_azimuth_deg": a_}
               for i, (z_, a_) in enumerate([(0.0, 0.0), (38.0, 0.0), (38.0, 180.0)])]
-    return BRFModel(model=gm, head_cfg=cfg, decoder=ae, wavelengths_nm=np.linspace(350.0, 1000.0, n_bands),
-                    sun_zenith_deg=35.0, sun_azimuth_deg=150.0, intrinsics=intr, frames=frames,
-                    cir_indices=(123, 76, 50), cir_scale=np.ones(3), scene_name="synthetic")
+    scene = {"name": "synthetic", "root": None, "wavelengths_nm": np.linspace(350.0, 1000.0, n_bands).tolist(),
+             "fwhm_nm": None, "sun_zenith_deg": 35.0, "sun_azimuth_deg": 150.0,
+             "intrinsics": intrinsics_json(intr),
+             "frames": frames}
+    return TrainedModel(gaussians=gm, head_cfg=cfg, decoder=ae, scene=scene, config={"variant": "brf"},
+                        meta={"cir_indices": [123, 76, 50], "cir_scale": [1.0, 1.0, 1.0]})
 
 
-def _median_time(fn, repeats: int) -> tuple[float, list[float], list[float]]:
-    """(median wall seconds, wall seconds, CPU seconds of this process) after one warm-up."""
-    fn()  # warm-up
+def _timed(fn: Callable[[], object], repeats: int) -> tuple[list[float], list[float]]:
+    """(wall seconds, CPU seconds of this process) of ``repeats`` calls of ``fn``."""
     ts, cs = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
         fn()
         ts.append(time.perf_counter() - t0)
         cs.append(time.process_time() - c0)
-    return statistics.median(ts), ts, cs
+    return ts, cs
 
 
-def bench_analysis(model=None, *, n_gaussians: int = 50_000, size: int = 128, repeats: int = 5,
-                   polar_azimuths: int = 60, polar_zeniths: int = 24, polar_repeats: int = 1,
-                   roi_half_m: float = 5.0, roi_size_px: int | None = None, bands=(480.0, 680.0, 760.0, 860.0),
-                   backend: str = "cpu", loop_threads: int = 1) -> dict:
+def _machine(backend: str, load_before: tuple[float, float, float]) -> dict:
+    return {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(),
+            "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(), "backend": backend,
+            "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())}
+
+
+def bench_analysis(
+    model: str | Path | None = None,
+    *,
+    n_gaussians: int = 50_000,
+    size: int = 128,
+    repeats: int = 5,
+    polar_azimuths: int = 60,
+    polar_zeniths: int = 24,
+    polar_repeats: int = 1,
+    roi_half_m: float = 5.0,
+    roi_size_px: int | None = None,
+    bands: tuple[float, ...] = (480.0, 680.0, 760.0, 860.0),
+    backend: str = "cpu",
+    loop_threads: int = 1,
+) -> dict:
     """Time one arbitrary view (decoded, all bands) and one polar map (4 bands); returns a dict."""
-    from brfgs.analysis.brf import auto_roi_size, polar_map
-    from brfgs.analysis.roi import PolygonROI
-    from brfgs.analysis.views import view_camera
-
-    bm = load_model(model) if model is not None else synthetic_model(n_gaussians)
-    c2w, intr = view_camera(37.0, 65.0, bm.typical_distance_m(), bm.scene_centre_m(), size=size,
-                            fov_deg=2 * math.degrees(math.atan(0.5 * bm.intrinsics.w / bm.intrinsics.fl_x)))
-    import numba
-
+    tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
+    c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size,
+                            fov_deg=2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x)))
+    cam = camera_from_intrinsics(c2w, intr)
     load_before = os.getloadavg()
-    med, all_, cpu = _median_time(lambda: render_view(bm, c2w, intr, backend=backend), repeats)
-    render_threads = {"numba": numba.get_num_threads(), "torch": torch.get_num_threads()}
-    rv = render_view(bm, c2w, intr, backend=backend)
-    c = bm.scene_centre_m()
+    def view():  # the view as `brfgs render` makes it: cube, CIR, depth and normals
+        return render(tm, cam, normals=True, backend=backend)
+
+    view()  # warm-up: numba loads its compiled kernels
+    all_, cpu = _timed(view, repeats)
+    rv = view()
+    c = tm.scene_centre_m()
     h = roi_half_m
     roi = PolygonROI(np.array([[c[0] - h, c[1] - h], [c[0] + h, c[1] - h], [c[0] + h, c[1] + h], [c[0] - h, c[1] + h]]))
-    bi = bm.band_indices(bands)
+    bi = tm.band_indices(bands)
 
     def pm():
         with torch_threads(loop_threads or None):
-            polar_map(bm, roi, bi, n_azimuth=polar_azimuths, n_zenith=polar_zeniths, size=roi_size_px,
+            polar_map(tm, roi, bi, n_azimuth=polar_azimuths, n_zenith=polar_zeniths, size=roi_size_px,
                       backend=backend)
 
-    pts, pcs = [], []
-    for _ in range(polar_repeats):
-        t0, c0 = time.perf_counter(), time.process_time()
-        pm()
-        pts.append(time.perf_counter() - t0)
-        pcs.append(time.process_time() - c0)
-
+    pts, pcs = _timed(pm, polar_repeats)
     return {
-        "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "cpu_count": os.cpu_count(), "torch_threads": render_threads["torch"],
-                    "numba_threads": render_threads["numba"], "backend": backend,
-                    "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())},
-        "model": "synthetic" if model is None else str(model), "n_gaussians": bm.n_gaussians,
-        "bands": len(bm.wavelengths_nm), "latent_dim": bm.model.latent_dim,
-        "render": {"size": [intr.w, intr.h], "median_s": med, "all_s": all_, "cpu_s": cpu,
-                   "median_cpu_s": statistics.median(cpu), "repeats": repeats,
-                   "split_s": rv.timings_s},
+        "machine": _machine(backend, load_before),
+        "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
+        "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
+        "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
+                   "median_cpu_s": statistics.median(cpu), "repeats": repeats, "split_s": rv.timings_s},
         "polar_map": {"directions": polar_azimuths * polar_zeniths, "bands": len(bi),
-                      "roi_camera_px": roi_size_px or auto_roi_size(bm, 1.1 * roi.radius_m),
+                      "roi_camera_px": roi_size_px or auto_roi_size(tm, 1.1 * roi.radius_m),
                       "median_s": statistics.median(pts), "all_s": pts, "cpu_s": pcs,
                       "median_cpu_s": statistics.median(pcs),
                       "per_direction_ms": 1000 * statistics.median(pts) / (polar_azimuths * polar_zeniths),

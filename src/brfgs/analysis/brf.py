@@ -14,19 +14,26 @@ the ROI), so what a sensor would see of the ROI is what is averaged.
   mean spectra of the ROI, and the frame's view direction seen from the ROI centre.
 - :func:`nearest_to_plane` — the observations closest to the principal plane (Fig. 8).
 - :func:`log_error` — ln(reconstructed / observed) (Fig. 7).
-- :func:`truth_brf` — on simulated scenes, the truth BRF of the ROI rendered again by the
-  simulator for given directions; :func:`brf_error` — per-band RMSE / bias against it.
+
+The simulator's truth BRF of an ROI (simulated scenes) is in :mod:`brfgs.analysis.truth`; the
+``brf`` command's report (CSV, PNG, JSON) in :mod:`brfgs.analysis.brf_report`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import spectral.io.envi as envi
+from numpy.typing import ArrayLike
+from torch import Tensor
+from tqdm import tqdm
 
-from brfgs.analysis.renderer import BRFModel, render_features
-from brfgs.analysis.roi import ROI, unproject_depth
+from brfgs.analysis.roi import ROI, intrinsics_for_shape, points_in_roi, unproject_depth
 from brfgs.analysis.views import (
     hemisphere_grid,
     principal_plane_directions,
@@ -34,21 +41,28 @@ from brfgs.analysis.views import (
     view_camera,
 )
 from brfgs.data.angles import relative_azimuth_deg, signed_principal_plane_zenith_deg
+from brfgs.data.cameras import Intrinsics
+from brfgs.data.cube_io import envi_image_path
+from brfgs.data.scene import Scene
 from brfgs.errors import UserError
+from brfgs.model import TrainedModel, camera_from_intrinsics, render
 
 __all__ = [
+    "MIN_ALPHA",
     "ROIBRF",
+    "FrameObservation",
     "roi_pixels",
     "roi_mean_from_view",
+    "robust_keep",
+    "training_footprint_m",
+    "auto_roi_size",
     "roi_brf",
     "principal_plane",
     "polar_map",
     "frame_observations",
     "nearest_to_plane",
     "log_error",
-    "truth_brf",
-    "check_truth_spp",
-    "brf_error",
+    "curve_peak",
 ]
 
 MIN_ALPHA = 0.5
@@ -58,52 +72,68 @@ MIN_ALPHA = 0.5
 class ROIBRF:
     """BRF samples of one ROI: directions, values [D, nb] per band, pixel counts [D]."""
 
-    view_zenith_deg: np.ndarray
-    view_azimuth_deg: np.ndarray
-    wavelengths_nm: np.ndarray
-    values: np.ndarray
-    n_pixels: np.ndarray
+    view_zenith_deg: np.ndarray  # [D]
+    view_azimuth_deg: np.ndarray  # [D]
+    wavelengths_nm: np.ndarray  # [nb]
+    values: np.ndarray  # [D, nb]
+    n_pixels: np.ndarray  # [D]
     extra: dict = field(default_factory=dict)
 
 
-def roi_pixels(roi: ROI, depth_m: np.ndarray, alpha: np.ndarray, c2w: np.ndarray, intr, *,
-               min_alpha: float = MIN_ALPHA) -> np.ndarray:
+def roi_pixels(
+    roi: ROI,
+    depth_m: np.ndarray,  # [H, W] m along the optical axis
+    alpha: np.ndarray,  # [H, W]
+    c2w: np.ndarray,  # [4, 4] OpenGL camera-to-world
+    intr: Intrinsics,
+    *,
+    min_alpha: float = MIN_ALPHA,
+) -> np.ndarray:  # [H, W] bool
     """bool [H, W]: pixels whose rendered surface point lies in the ROI (and alpha ≥ min_alpha)."""
     ok = (np.asarray(alpha) >= min_alpha) & (np.asarray(depth_m) > 0)
     if not ok.any():
         return ok
-    pts = unproject_depth(np.where(ok, depth_m, np.nan), c2w, intr)
-    inside = np.zeros(ok.shape, bool)
-    inside[ok] = roi.contains(pts[ok])
-    return inside
+    return points_in_roi(roi, unproject_depth(np.where(ok, depth_m, np.nan), c2w, intr))
 
 
-def roi_mean_from_view(bm: BRFModel, roi: ROI, c2w: np.ndarray, intr, omega_i, *, backend: str = "auto",
-                       min_alpha: float = MIN_ALPHA, return_pixels: bool = False):
+def roi_mean_from_view(
+    tm: TrainedModel,
+    roi: ROI,
+    c2w: np.ndarray,  # [4, 4] OpenGL camera-to-world
+    intr: Intrinsics,
+    omega_i: Tensor,  # [3] unit, toward the sun
+    *,
+    backend: str = "auto",
+    min_alpha: float = MIN_ALPHA,
+    return_pixels: bool = False,
+) -> tuple:
     """(mean reflectance [B], number of ROI pixels, ROI mask [H, W]) of one rendered view
     (plus the decoded ROI pixels [n, B] in mask order when ``return_pixels``).
 
     Only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per pixel
     and then averaged, as a sensor would average reflectance).
     """
-    out = render_features(bm, lambda idx, oo: bm.gaussian_latent(omega_i, oo, idx), c2w, intr, backend=backend)
-    alpha = out.alpha.numpy()
-    depth = out.depth.numpy()
-    mask = roi_pixels(roi, depth, alpha, c2w, intr, min_alpha=min_alpha)
+    rv = render(tm, camera_from_intrinsics(c2w, intr), features=lambda idx, oo: tm.gaussian_latent(omega_i, oo, idx),
+                backend=backend)
+    mask = roi_pixels(roi, rv.depth, rv.alpha, c2w, intr, min_alpha=min_alpha)
     n = int(mask.sum())
     if n == 0:
-        empty = np.full(len(bm.wavelengths_nm), np.nan, np.float32)
+        empty = np.full(len(tm.wavelengths_nm), np.nan, np.float32)
         return (empty, 0, mask, np.zeros((0, len(empty)), np.float32)) if return_pixels else (empty, 0, mask)
-    lat = out.image.numpy()[mask]
-    if bm.bg_latent is not None:
-        lat = lat + (1.0 - alpha[mask])[:, None] * bm.bg_latent.numpy()[None]
-    spec = bm.decode(lat)                                     # [n, B]
+    lat = rv.image.numpy()[mask]
+    if tm.bg_latent is not None:
+        lat = lat + (1.0 - rv.alpha[mask])[:, None] * tm.bg_latent.numpy()[None]
+    spec = tm.decode(lat)                                     # [n, B]
     if return_pixels:
         return spec.mean(0), n, mask, spec
     return spec.mean(0), n, mask
 
 
-def robust_keep(spectra: np.ndarray, k_mad: float = 3.0, min_pixels: int = 10) -> np.ndarray:
+def robust_keep(
+    spectra: np.ndarray,  # [n, B]
+    k_mad: float = 3.0,
+    min_pixels: int = 10,
+) -> np.ndarray:  # [n] bool
     """bool [n]: pixels whose mean reflectance lies within k·1.4826·MAD of the median
     (pixel-wise outlier removal before ROI means, paper §4.3); all kept below ``min_pixels``."""
     x = np.asarray(spectra, float)
@@ -118,30 +148,42 @@ def robust_keep(spectra: np.ndarray, k_mad: float = 3.0, min_pixels: int = 10) -
     return keep & (np.abs(b - med) <= k_mad * mad)
 
 
-def _roi_target(bm: BRFModel, roi: ROI) -> np.ndarray:
+def _roi_target(tm: TrainedModel, roi: ROI) -> np.ndarray:  # [3] m
     c = np.asarray(roi.centre_m, float)
     if getattr(roi, "kind", "") == "polygon" and getattr(roi, "surface_dz_m", 0.0) == 0.0 \
             and getattr(roi, "surface_z_m", 0.0) == 0.0:
-        roi.set_surface_height(bm.model.means.detach().double().numpy())
+        roi.set_surface_height(tm.gaussians.means.detach().double().numpy())
         c = np.asarray(roi.centre_m, float)
     return c
 
 
-def training_footprint_m(bm: BRFModel) -> float:
+def training_footprint_m(tm: TrainedModel) -> float:
     """Ground size (m) of one training pixel: median camera distance / focal length (px)."""
-    return bm.typical_distance_m() / (0.5 * (bm.intrinsics.fl_x + bm.intrinsics.fl_y))
+    return tm.typical_distance_m() / (0.5 * (tm.intrinsics.fl_x + tm.intrinsics.fl_y))
 
 
-def auto_roi_size(bm: BRFModel, half_extent_m: float, lo: int = 16, hi: int = 512) -> int:
+def auto_roi_size(tm: TrainedModel, half_extent_m: float, lo: int = 16, hi: int = 512) -> int:
     """Pixels of an ROI camera spanning 2·half_extent_m with the training pixel footprint."""
-    return int(np.clip(math.ceil(2.0 * half_extent_m / training_footprint_m(bm)), lo, hi))
+    return int(np.clip(math.ceil(2.0 * half_extent_m / training_footprint_m(tm)), lo, hi))
 
 
-def roi_brf(bm: BRFModel, roi: ROI, view_zenith_deg, view_azimuth_deg, band_idx=None, *,
-            sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None, size: int | None = None,
-            distance_m: float | None = None, backend: str = "auto", progress: bool = False,
-            desc: str = "BRF", min_alpha: float = MIN_ALPHA) -> ROIBRF:
-    """BRF of ``roi`` for the directions (arrays of equal length, degrees) in bands ``band_idx``.
+def roi_brf(
+    tm: TrainedModel,
+    roi: ROI,
+    view_zenith_deg: ArrayLike,  # [D] deg (or a scalar)
+    view_azimuth_deg: ArrayLike,  # [D] deg (or a scalar)
+    band_idx: Sequence[int] | None = None,  # [nb] band indices (None: all)
+    *,
+    sun_deg: tuple[float, float] | None = None,
+    size: int | None = None,
+    distance_m: float | None = None,
+    backend: str = "auto",
+    progress: bool = False,
+    desc: str = "BRF",
+    min_alpha: float = MIN_ALPHA,
+) -> ROIBRF:
+    """BRF of ``roi`` for the directions (arrays of equal length, degrees) in bands ``band_idx``,
+    under the sun ``sun_deg`` = (zenith, azimuth) in degrees (default: the acquisition's).
 
     ``size``: pixels of the square ROI camera (the ROI spans ~90 % of it); default: the size
     whose pixel footprint equals the training images' (:func:`auto_roi_size`) — 3DGS renders
@@ -155,58 +197,54 @@ def roi_brf(bm: BRFModel, roi: ROI, view_zenith_deg, view_azimuth_deg, band_idx=
     az = np.atleast_1d(np.asarray(view_azimuth_deg, float))
     if zen.shape != az.shape:
         raise ValueError("zenith and azimuth arrays must have the same shape")
-    bi = np.arange(len(bm.wavelengths_nm)) if band_idx is None else np.asarray(band_idx, int)
-    target = _roi_target(bm, roi)
+    bi = np.arange(len(tm.wavelengths_nm)) if band_idx is None else np.asarray(band_idx, int)
+    target = _roi_target(tm, roi)
     half = 1.1 * roi.radius_m
     if distance_m is None:
         # the training cameras' distance, but far enough that the view direction varies by at
         # most ~±7° across the ROI (an ROI's BRF is for one direction)
-        dist = max(bm.typical_distance_m(), 8.0 * roi.radius_m)
+        dist = max(tm.typical_distance_m(), 8.0 * roi.radius_m)
     else:
         dist = max(float(distance_m), 1.5 * half)
     if size is None:
-        size = auto_roi_size(bm, half)
-    omega_i = bm.sun_direction(sun_zenith_deg, sun_azimuth_deg)
+        size = auto_roi_size(tm, half)
+    sun_z, sun_a = (tm.sun_zenith_deg, tm.sun_azimuth_deg) if sun_deg is None else sun_deg
+    omega_i = tm.sun_direction(sun_z, sun_a)
     vals = np.full((zen.size, bi.size), np.nan, np.float32)
     counts = np.zeros(zen.size, np.int64)
-    it = range(zen.size)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc=desc, leave=False)
-    for k in it:
+    for k in tqdm(range(zen.size), desc=desc, leave=False, disable=not progress):
         c2w, intr = view_camera(zen.flat[k], az.flat[k], dist, target, size=size, half_extent_m=half)
-        mean, n, _ = roi_mean_from_view(bm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha)
+        mean, n, _ = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha)
         counts[k] = n
         if n:
             vals[k] = mean[bi]
-    return ROIBRF(zen, az, bm.wavelengths_nm[bi], vals, counts,
+    return ROIBRF(zen, az, tm.wavelengths_nm[bi], vals, counts,
                   {"distance_m": dist, "size_px": size, "half_extent_m": half, "target_m": target.tolist(),
-                   "min_alpha": min_alpha,
-                   "sun_zenith_deg": bm.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg,
-                   "sun_azimuth_deg": bm.sun_azimuth_deg if sun_azimuth_deg is None else sun_azimuth_deg})
+                   "min_alpha": min_alpha, "sun_zenith_deg": sun_z, "sun_azimuth_deg": sun_a})
 
 
-def principal_plane(bm: BRFModel, roi: ROI, band_idx, *, max_zenith_deg: float = 75.0, step_deg: float = 2.5,
-                    **kw) -> tuple[np.ndarray, ROIBRF]:
-    """(signed view zenith [D] in degrees, ROIBRF) along the principal plane, −max…+max.
+def principal_plane(tm: TrainedModel, roi: ROI, band_idx: Sequence[int], *, max_zenith_deg: float = 75.0,
+                    step_deg: float = 2.5, **kw: Any) -> tuple[np.ndarray, ROIBRF]:
+    """(signed view zenith [D] in degrees, ROIBRF) along the principal plane, −max…+max, in the
+    bands ``band_idx`` [nb]; ``kw``: the sampling options of :func:`roi_brf`.
 
     Positive = sun's side (backscatter; the hotspot is at +θ_s), negative = forward
     (the specular direction is at −θ_s).
     """
     n = int(round(2 * max_zenith_deg / step_deg)) + 1
     s = np.linspace(-max_zenith_deg, max_zenith_deg, n)
-    sun_az = bm.sun_azimuth_deg if kw.get("sun_azimuth_deg") is None else kw["sun_azimuth_deg"]
+    sun_az = tm.sun_azimuth_deg if kw.get("sun_deg") is None else kw["sun_deg"][1]
     zen, az = principal_plane_directions(s, sun_az)
-    return s, roi_brf(bm, roi, zen, az, band_idx, desc="principal plane", **kw)
+    return s, roi_brf(tm, roi, zen, az, band_idx, desc="principal plane", **kw)
 
 
-def polar_map(bm: BRFModel, roi: ROI, band_idx, *, n_azimuth: int = 60, n_zenith: int = 24,
-              max_zenith_deg: float = 75.0, **kw) -> tuple[np.ndarray, np.ndarray, np.ndarray, ROIBRF]:
-    """(zenith_deg [Z], azimuth_deg [A] (absolute view azimuth), values [Z, A, nb], ROIBRF)."""
+def polar_map(tm: TrainedModel, roi: ROI, band_idx: Sequence[int], *, n_azimuth: int = 60, n_zenith: int = 24,
+              max_zenith_deg: float = 75.0, **kw: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, ROIBRF]:
+    """(zenith_deg [Z], azimuth_deg [A] (absolute view azimuth), values [Z, A, nb], ROIBRF) of the
+    bands ``band_idx`` [nb]; ``kw``: the sampling options of :func:`roi_brf`."""
     zc, ac = hemisphere_grid(n_azimuth, n_zenith, max_zenith_deg)
     Z, A = np.meshgrid(zc, ac, indexing="ij")
-    res = roi_brf(bm, roi, Z.ravel(), A.ravel(), band_idx, desc="polar map", **kw)
+    res = roi_brf(tm, roi, Z.ravel(), A.ravel(), band_idx, desc="polar map", **kw)
     return zc, ac, res.values.reshape(len(zc), len(ac), -1), res
 
 
@@ -232,9 +270,34 @@ class FrameObservation:
     truth_n_pixels: int = 0
 
 
-def frame_observations(bm: BRFModel, roi: ROI, scene=None, *, splits=("train", "test"), truth: bool = True,
-                       backend: str = "auto", progress: bool = False, min_alpha: float = MIN_ALPHA,
-                       outlier_k_mad: float = 3.0) -> list[FrameObservation]:
+def _frame_geometry(c2w: np.ndarray, target: np.ndarray, sun_azimuth_deg: float) -> tuple[float, ...]:
+    """(zenith, azimuth, relative azimuth, signed principal-plane zenith, azimuthal distance to the
+    principal plane) in degrees of a camera at ``c2w`` [4, 4] seen from ``target`` [3]."""
+    zen, az = view_angles_from_points(c2w[:3, 3], target)
+    rel = float(relative_azimuth_deg(az, sun_azimuth_deg))
+    signed = float(signed_principal_plane_zenith_deg(zen, rel))
+    off = float(min(rel % 180.0, 180.0 - rel % 180.0)) if zen > 1e-6 else 0.0
+    return zen, az, rel, signed, off
+
+
+def _check_scene_size(scene: Scene, intr: Intrinsics) -> None:
+    if (scene.width, scene.height) != (intr.w, intr.h):
+        raise UserError(f"the scene's images are {scene.width}x{scene.height} but the model was trained on "
+                        f"{intr.w}x{intr.h} (use the same --downscale)", field="--scene")
+
+
+def frame_observations(
+    tm: TrainedModel,
+    roi: ROI,
+    scene: Scene | None = None,
+    *,
+    splits: tuple[str, ...] = ("train", "test"),
+    truth: bool = True,
+    backend: str = "auto",
+    progress: bool = False,
+    min_alpha: float = MIN_ALPHA,
+    outlier_k_mad: float = 3.0,
+) -> list[FrameObservation]:
     """ROI statistics of every frame of the model (training poses), optionally with images.
 
     For each frame: render the model from the frame's pose → ROI pixel mask (rendered
@@ -245,37 +308,25 @@ def frame_observations(bm: BRFModel, roi: ROI, scene=None, *, splits=("train", "
     scene's truth/ (simulated scenes), the truth mean over the pixels whose *true* surface
     point (truth/depth) lies in the ROI (same outlier removal). The view direction is measured from the ROI centre.
     """
-    target = _roi_target(bm, roi)
-    omega_i = bm.sun_direction()
-    intr = bm.intrinsics
+    target = _roi_target(tm, roi)
+    omega_i = tm.sun_direction()
+    intr = tm.intrinsics
     name_to_index = {}
     if scene is not None:
         name_to_index = {f.name: i for i, f in enumerate(scene.frames)}
-        if (scene.width, scene.height) != (intr.w, intr.h):
-            raise UserError(f"the scene's images are {scene.width}x{scene.height} but the model was trained on "
-                            f"{intr.w}x{intr.h} (use the same --downscale)", field="--scene")
+        _check_scene_size(scene, intr)
     truth_dir = getattr(scene, "truth_dir", None) if (scene is not None and truth) else None
-    frames = [f for f in bm.frames if f.get("split", "train") in splits]
-    it = frames
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(frames, desc="frames", leave=False)
+    frames = [f for f in tm.frames if f.get("split", "train") in splits]
     out = []
-    for fr in it:
+    for fr in tqdm(frames, desc="frames", leave=False, disable=not progress):
         c2w = np.asarray(fr["c2w"], float)
-        zen, az = view_angles_from_points(c2w[:3, 3], target)
-        rel = float(relative_azimuth_deg(az, bm.sun_azimuth_deg))
-        signed = float(signed_principal_plane_zenith_deg(zen, rel))
-        off = float(min(rel % 180.0, 180.0 - rel % 180.0)) if zen > 1e-6 else 0.0
-        rec, n, mask, pix = roi_mean_from_view(bm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha,
+        zen, az, rel, signed, off = _frame_geometry(c2w, target, tm.sun_azimuth_deg)
+        rec, n, mask, pix = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha,
                                                return_pixels=True)
         obs = None
         tru, tn = None, 0
         if scene is not None and fr["name"] in name_to_index and n:
-            i = name_to_index[fr["name"]]
-            img = scene.load_image(i)
-            o_pix = img[mask]                                 # [n, B], mask order as pix
+            o_pix = scene.load_image(name_to_index[fr["name"]])[mask]  # [n, B], mask order as pix
             keep = robust_keep(o_pix, outlier_k_mad)
             if keep.any():
                 obs = o_pix[keep].mean(0)
@@ -288,34 +339,20 @@ def frame_observations(bm: BRFModel, roi: ROI, scene=None, *, splits=("train", "
     return out
 
 
-def _truth_mean(truth_dir, name: str, c2w, intr, roi: ROI, outlier_k_mad: float = 3.0
-                ) -> tuple[np.ndarray | None, int]:
-    """Mean truth spectrum over pixels whose true surface point lies in the ROI, with the same
+def _truth_mean(truth_dir: Path, name: str, c2w: np.ndarray, intr: Intrinsics, roi: ROI,
+                outlier_k_mad: float = 3.0) -> tuple[np.ndarray | None, int]:
+    """Mean truth spectrum [B] over pixels whose true surface point lies in the ROI, with the same
     outlier removal as the observed mean (:func:`robust_keep`: border pixels that mix the ROI
     with a brighter neighbour, e.g. water next to vegetation in the near infrared)."""
-    from pathlib import Path
-
-    from brfgs.data.cube_io import envi_image_path
-
     truth_dir = Path(truth_dir)
     hdr = truth_dir / "images" / f"{name}.hdr"
     dp = truth_dir / "depth" / f"{name}.npy"
     if not (hdr.is_file() and dp.is_file() and envi_image_path(hdr) is not None):
         return None, 0
-    import spectral.io.envi as envi
-
     cube = np.asarray(envi.open(str(hdr), str(envi_image_path(hdr))).load(), np.float32)
     depth = np.load(dp, allow_pickle=False).astype(float)
-    h, w = depth.shape
-    if (w, h) != (intr.w, intr.h):
-        from brfgs.data.cameras import Intrinsics
-
-        fx, fy = w / intr.w, h / intr.h
-        intr = Intrinsics(intr.fl_x * fx, intr.fl_y * fy, intr.cx * fx, intr.cy * fy, w, h)
-    pts = unproject_depth(depth, c2w, intr)
-    ok = np.isfinite(pts).all(-1)
-    sel = np.zeros(ok.shape, bool)
-    sel[ok] = roi.contains(pts[ok])
+    intr = intrinsics_for_shape(intr, depth.shape)
+    sel = points_in_roi(roi, unproject_depth(depth, c2w, intr))
     sel &= np.isfinite(cube).all(-1)
     if not sel.any():
         return None, 0
@@ -324,8 +361,8 @@ def _truth_mean(truth_dir, name: str, c2w, intr, roi: ROI, outlier_k_mad: float 
     return vals[keep].mean(0), int(keep.sum())
 
 
-def nearest_to_plane(obs: list[FrameObservation], max_offset_deg: float = 20.0, zenith_bin_deg: float = 4.0
-                     ) -> list[FrameObservation]:
+def nearest_to_plane(obs: list[FrameObservation], max_offset_deg: float = 20.0,
+                     zenith_bin_deg: float = 4.0) -> list[FrameObservation]:
     """For each zenith ring and side of the principal plane, the observation nearest the plane.
 
     Observations whose azimuthal distance to the plane exceeds ``max_offset_deg`` are
@@ -342,14 +379,21 @@ def nearest_to_plane(obs: list[FrameObservation], max_offset_deg: float = 20.0, 
     return sorted(best.values(), key=lambda o: o.signed_zenith_deg)
 
 
-def log_error(reconstructed: np.ndarray, observed: np.ndarray, floor: float = 1e-4) -> np.ndarray:
+def log_error(
+    reconstructed: np.ndarray,  # [B]
+    observed: np.ndarray,  # [B]
+    floor: float = 1e-4,
+) -> np.ndarray:  # [B]
     """Logarithmic error ln(reconstructed / observed) per band (both clipped to ≥ ``floor``)."""
     r = np.maximum(np.asarray(reconstructed, float), floor)
     o = np.maximum(np.asarray(observed, float), floor)
     return np.log(r / o)
 
 
-def curve_peak(signed_zenith_deg: np.ndarray, values: np.ndarray) -> float:
+def curve_peak(
+    signed_zenith_deg: np.ndarray,  # [D]
+    values: np.ndarray,  # [D]
+) -> float:
     """Signed zenith (deg) of a curve's maximum, refined by a parabola through the top 3 samples."""
     v = np.asarray(values, float)
     s = np.asarray(signed_zenith_deg, float)
@@ -364,103 +408,3 @@ def curve_peak(signed_zenith_deg: np.ndarray, values: np.ndarray) -> float:
             t = 0.5 * (y0 - y2) / den
             return float(s[k] + t * (s[k + 1] - s[k]))
     return float(s[k])
-
-
-def has_simulator_truth(scene_root) -> bool:
-    """True when ``scene_root`` is a simulated scene that the simulator can render again."""
-    from pathlib import Path
-
-    return scene_root is not None and (Path(scene_root) / "truth" / "scene.json").is_file()
-
-
-def simulator_sampler(scene_root) -> tuple[str, int]:
-    """(Mitsuba sampler, spp) of a simulated scene (truth/scene.json); scenes written before
-    the sampler option used "independent"."""
-    import json
-    from pathlib import Path
-
-    path = Path(scene_root) / "truth" / "scene.json"
-    try:
-        cfg = json.loads(path.read_text()).get("config", {})
-    except (OSError, ValueError, AttributeError):
-        raise UserError("unreadable simulator configuration", file=path, field="config") from None
-    return str(cfg.get("sampler", "independent")), int(cfg.get("spp", 0) or 0)
-
-
-def check_truth_spp(scene_root, spp: int | None, field: str = "--truth-spp") -> int | None:
-    """``spp`` validated for the scene's sampler: a power of 4 (1, 4, 16, 64, 256, ...) for
-    Mitsuba's low-discrepancy "ldsampler" (it would round other counts up silently), a power
-    of two for "independent". None keeps the scene's own spp."""
-    if spp is None:
-        return None
-    spp = int(spp)
-    sampler, _ = simulator_sampler(scene_root)
-    if spp < 1 or spp & (spp - 1):
-        raise UserError(f"samples per pixel must be a power of two, got {spp}", field=field)
-    if sampler == "ldsampler" and (spp.bit_length() - 1) % 2:
-        raise UserError(f"this scene was simulated with the 'ldsampler' sampler, whose samples per pixel must be a "
-                        f"power of 4 (1, 4, 16, 64, 256, ...), got {spp}", field=field)
-    return spp
-
-
-def truth_brf(scene_root, roi: ROI, view_zenith_deg, view_azimuth_deg, band_idx, *, distance_m: float,
-              size: int = 128, spp: int | None = None, progress: bool = False, chunk: int = 64) -> ROIBRF:
-    """Truth BRF of ``roi``: the simulator renders the clean scene again from each direction
-    (brfgs.sim.acquisition.render_scene_views: cameras at ``distance_m`` looking at the ROI
-    centre, the acquisition's field of view, ``size`` pixels, ``spp`` samples per pixel —
-    default the scene's; see :func:`check_truth_spp`) and the ROI is the set of pixels
-    whose *true* surface point (ray-cast depth) lies in it. Directions are rendered ``chunk``
-    at a time (the simulator builds the scene once per call)."""
-    from brfgs.data.cameras import Intrinsics
-    from brfgs.sim.acquisition import render_scene_views
-
-    zen = np.atleast_1d(np.asarray(view_zenith_deg, float))
-    az = np.atleast_1d(np.asarray(view_azimuth_deg, float))
-    bi = [int(b) for b in np.atleast_1d(band_idx)]
-    spp = check_truth_spp(scene_root, spp, field="spp")
-    target = np.asarray(roi.centre_m, float)
-    vals = np.full((zen.size, len(bi)), np.nan, np.float32)
-    counts = np.zeros(zen.size, np.int64)
-    wl = None
-    chunk = max(1, int(chunk))
-    for k0 in range(0, zen.size, chunk):
-        dirs = [(zen[k], az[k]) for k in range(k0, min(zen.size, k0 + chunk))]
-        r = render_scene_views(scene_root, dirs, size=size, spp=spp, bands=bi, distance_m=distance_m,
-                               target_m=target, progress=progress)
-        wl = r["wavelengths_nm"]
-        intr = r["intrinsics"]
-        if not isinstance(intr, Intrinsics):
-            intr = Intrinsics(**intr)
-        for j in range(len(dirs)):
-            k = k0 + j
-            depth = r["depth"][j].astype(float)
-            pts = unproject_depth(np.where(depth > 0, depth, np.nan), r["c2w"][j], intr)
-            ok = np.isfinite(pts).all(-1)
-            sel = np.zeros(ok.shape, bool)
-            sel[ok] = roi.contains(pts[ok])
-            refl = r["reflectance"][j]
-            sel &= np.isfinite(refl).all(-1)
-            counts[k] = int(sel.sum())
-            if counts[k]:
-                vals[k] = refl[sel].mean(0)
-    return ROIBRF(zen, az, np.asarray(wl if wl is not None else []), vals, counts,
-                  {"distance_m": distance_m, "size_px": size, "spp": spp, "target_m": target.tolist(),
-                   "source": "simulator"})
-
-
-def brf_error(model: np.ndarray, truth: np.ndarray, wavelengths_nm) -> dict:
-    """Per-band error of model BRF [D, nb] against truth [D, nb] over the directions where both
-    are finite: RMSE, mean bias (model − truth) and mean relative error |model − truth| / truth."""
-    m = np.asarray(model, float)
-    t = np.asarray(truth, float)
-    ok = np.isfinite(m).all(1) & np.isfinite(t).all(1)
-    keys = [f"{w:.0f}" for w in wavelengths_nm]
-    if not ok.any():
-        return {"n_directions": 0, "rmse": {k: None for k in keys}, "mean_bias": {k: None for k in keys},
-                "mean_relative_error": {k: None for k in keys}, "reason": "no direction where both are seen"}
-    e = m[ok] - t[ok]
-    return {"n_directions": int(ok.sum()),
-            "rmse": {k: float(np.sqrt(np.mean(e[:, j] ** 2))) for j, k in enumerate(keys)},
-            "mean_bias": {k: float(np.mean(e[:, j])) for j, k in enumerate(keys)},
-            "mean_relative_error": {k: float(np.mean(np.abs(e[:, j]) / np.maximum(np.abs(t[ok, j]), 1e-6)))
-                                    for j, k in enumerate(keys)}}

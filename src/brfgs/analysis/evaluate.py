@@ -25,6 +25,69 @@ from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
 
+def _scene_for(lm: TrainedModel, scene_path: str | Path | None):
+    """The model's scene (or ``scene_path``), read as in training; UserError if it does not match."""
+    cfg = lm.config
+    root = Path(scene_path) if scene_path else Path(lm.scene["root"])
+    scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
+                       value_range=tuple(cfg["value_range"]))
+    where = root / "transforms.json"
+    if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
+        raise UserError("the scene's wavelengths differ from the model's", file=where, field="wavelengths_nm")
+    if [f.name for f in scene.frames] != [f["name"] for f in lm.scene["frames"]]:
+        raise UserError("the scene's frames differ from those the model was trained on", file=where, field="frames")
+    if not scene.test_indices:
+        raise UserError("the scene has no test views", file=where, field="frames")
+    return scene
+
+
+def _references(scene, i: int) -> dict:
+    """{"observed": (cube, valid), "truth": (cube, valid) when the scene has truth} of frame ``i``."""
+    obs = scene.load_image(i)
+    refs = {"observed": (obs, np.isfinite(obs).all(-1))}
+    if scene.truth_dir is not None:
+        tr = scene.load_truth(i)
+        if tr is not None:
+            refs["truth"] = (tr, np.isfinite(tr).all(-1))
+    return refs
+
+
+def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> dict:
+    """{against: metrics} of test view ``i``; with ``out``, the CIR comparison PNGs and the ENVI render."""
+    name = scene.frames[i].name
+    r = render(lm, lm.cameras[i], backend=backend)
+    scores = {}
+    for against, (ref, ok) in _references(scene, i).items():
+        ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)
+        m = M.image_metrics(r.cube, ref, r.cir, ref_cir, ok, spectral=lm.spectral,
+                            spectral_reason="RGB-style model trained on CIR composites: no spectra (SAM '-')")
+        scores[against] = m = {"name": name, **m}
+        if out is not None:
+            save_cir_comparison(out / "eval" / "cir" / f"{name}_vs_{against}.png", ref_cir, r.cir,
+                                f"{scene.name} {name} [{lm.appearance}] vs {against}: PSNR {m['psnr'] or float('nan'):.2f} dB"
+                                + (f", SAM {m['sam']:.4f} rad" if m.get("sam") is not None else ""))
+    if out is not None and r.cube is not None:
+        write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm)
+    return scores
+
+
+def _settings(lm: TrainedModel, scene, backend: str) -> dict:
+    return {
+        "config": lm.config,
+        "n_gaussians": lm.n_gaussians,
+        "backend": backend,
+        "bands_used": len(scene.wavelengths_nm),
+        "cir_indices": list(lm.cir_indices),
+        "cir_wavelengths_nm": [float(scene.wavelengths_nm[j]) for j in lm.cir_indices],
+        "cir_scale": [float(v) for v in lm.cir_scale],
+        "metric_definitions": "conventions.md: PSNR/SSIM/LPIPS on CIR composites (data range 1), SAM (rad) and "
+                              "psnr_spectral over all bands; SSIM 11x11 Gaussian window sigma 1.5",
+        "autoencoder": lm.meta.get("autoencoder_report", {}).get("test"),
+        "train_timings_s": lm.meta.get("timings_s"),
+        "eval_seconds": None,
+    }
+
+
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE) -> dict:
     """Evaluate the trained model of ``out_dir`` on its test views; returns the metrics dict.
@@ -38,71 +101,16 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     if not mpath.is_file():
         raise UserError(f"no {model_file}: train first (brfgs train SCENE {out})", file=out)
     lm = TrainedModel.load(mpath)
-    cfg = lm.config
-    backend = backend or cfg.get("backend", "auto")
-    root = Path(scene_path) if scene_path else Path(lm.scene["root"])
-    scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
-                       value_range=tuple(cfg["value_range"]))
-    if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
-        raise UserError("the scene's wavelengths differ from the model's", file=root / "transforms.json", field="wavelengths_nm")
-    names = [f.name for f in scene.frames]
-    model_names = [f["name"] for f in lm.scene["frames"]]
-    if names != model_names:
-        raise UserError("the scene's frames differ from those the model was trained on", file=root / "transforms.json", field="frames")
-    test = scene.test_indices
-    if not test:
-        raise UserError("the scene has no test views", file=root / "transforms.json", field="frames")
+    backend = backend or lm.config.get("backend", "auto")
+    scene = _scene_for(lm, scene_path)
     views = {"observed": [], "truth": []}
-    has_truth = scene.truth_dir is not None
     t0 = time.perf_counter()
-    it = test
-    if progress:
-        it = tqdm(test, desc="evaluate", leave=False)
-    for i in it:
-        name = scene.frames[i].name
-        r = render(lm, lm.cameras[i], backend=backend)
-        obs = scene.load_image(i)
-        valid = np.isfinite(obs).all(-1)
-        refs = {"observed": (obs, valid)}
-        if has_truth:
-            tr = scene.load_truth(i)
-            if tr is not None:
-                refs["truth"] = (tr, np.isfinite(tr).all(-1))
-        for against, (ref, ok) in refs.items():
-            ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)
-            m = M.image_metrics(r.cube, ref, r.cir, ref_cir, ok, spectral=lm.spectral,
-                                spectral_reason="RGB-style model trained on CIR composites: no spectra (SAM '-')")
-            m = {"name": name, **m}
+    for i in tqdm(scene.test_indices, desc="evaluate", leave=False, disable=not progress):
+        for against, m in _score_view(lm, scene, i, backend, out if write_images else None).items():
             views[against].append(m)
-            if write_images:
-                save_cir_comparison(out / "eval" / "cir" / f"{name}_vs_{against}.png", ref_cir, r.cir,
-                              f"{scene.name} {name} [{lm.meta['appearance']}] vs {against}: PSNR {m['psnr'] or float('nan'):.2f} dB"
-                              + (f", SAM {m['sam']:.4f} rad" if m.get("sam") is not None else ""))
-        if write_images and r.cube is not None:
-            write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm)
-    result = {
-        "scene": scene.name,
-        "scene_root": str(root.resolve()),
-        "model": _model_name(lm),
-        "split": scene.split_record(),
-        "settings": {
-            "config": cfg,
-            "n_gaussians": lm.n_gaussians,
-            "backend": backend,
-            "bands_used": len(scene.wavelengths_nm),
-            "cir_indices": list(lm.cir_indices),
-            "cir_wavelengths_nm": [float(scene.wavelengths_nm[j]) for j in lm.cir_indices],
-            "cir_scale": [float(v) for v in lm.cir_scale],
-            "metric_definitions": "conventions.md: PSNR/SSIM/LPIPS on CIR composites (data range 1), SAM (rad) and "
-                                  "psnr_spectral over all bands; SSIM 11x11 Gaussian window sigma 1.5",
-            "autoencoder": lm.meta.get("autoencoder_report", {}).get("test"),
-            "train_timings_s": lm.meta.get("timings_s"),
-            "eval_seconds": None,
-        },
-        "against": {"observed": {"mean": M.mean_metrics(views["observed"]), "views": views["observed"]}},
-    }
-    if views["truth"]:
-        result["against"]["truth"] = {"mean": M.mean_metrics(views["truth"]), "views": views["truth"]}
+    result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
+              "split": scene.split_record(), "settings": _settings(lm, scene, backend),
+              "against": {k: {"mean": M.mean_metrics(v), "views": v} for k, v in views.items() if v}}
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
     atomic.write_json(out / "metrics.json", result)
     return result

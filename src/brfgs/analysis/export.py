@@ -35,16 +35,27 @@ Colours (``view_dependence``):
 
 from __future__ import annotations
 
+import hashlib
+import json
+import shutil
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from plyfile import PlyData, PlyElement
+from torch import Tensor
 
-from brfgs.analysis.renderer import BRFModel
+from brfgs.analysis.output import prepare_output_dir
+from brfgs.brdf.geometry import gaussian_normals
+from brfgs.brdf.head import roughness_from_raw
+from brfgs.brdf.sh import sh_basis
 from brfgs.errors import UserError
+from brfgs.model import TrainedModel
 
-__all__ = ["SH_C0", "STANDARD_PROPERTIES", "N_SH_REST", "gaussian_cir_colours", "fit_cir_sh", "write_ply",
-           "read_ply"]
+__all__ = ["SH_C0", "STANDARD_PROPERTIES", "N_SH_REST", "VIEW_DEPENDENCE", "gaussian_cir_colours",
+           "hemisphere_directions", "fit_cir_sh", "write_ply", "read_ply", "ExportOptions", "export_model"]
 
 SH_C0 = 0.28209479177387814
 N_SH_REST = 15                       # degree-3 SH bases beyond DC, per colour channel
@@ -54,31 +65,36 @@ STANDARD_PROPERTIES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_
 VIEW_DEPENDENCE = ("fit", "none")
 
 
-def _cir_of(bm: BRFModel, idx: torch.Tensor, omega_o: torch.Tensor, omega_i: torch.Tensor) -> np.ndarray:
+def _cir_of(
+    tm: TrainedModel,
+    idx: Tensor,  # [n] long
+    omega_o: Tensor,  # [n, 3] unit, toward the camera
+    omega_i: Tensor,  # [3] unit, toward the sun
+) -> np.ndarray:  # [n, 3]
     """CIR colour [n, 3] (unclipped) of Gaussians ``idx`` for ω_o [n, 3]."""
-    if bm.appearance == "cir" or bm.decoder is None:          # the head's output is the CIR colour itself
-        return bm.gaussian_latent(omega_i, omega_o, idx).numpy()
-    refl = bm.decode(bm.gaussian_latent(omega_i, omega_o, idx))
-    return refl[:, list(bm.cir_indices)] / np.asarray(bm.cir_scale, float)[None]
+    if tm.appearance == "cir" or tm.decoder is None:          # the head's output is the CIR colour itself
+        return tm.gaussian_latent(omega_i, omega_o, idx).numpy()
+    refl = tm.decode(tm.gaussian_latent(omega_i, omega_o, idx))
+    return refl[:, list(tm.cir_indices)] / np.asarray(tm.cir_scale, float)[None]
 
 
 @torch.no_grad()
-def gaussian_cir_colours(bm: BRFModel, chunk: int = 1 << 15) -> np.ndarray:
+def gaussian_cir_colours(tm: TrainedModel, chunk: int = 1 << 15) -> np.ndarray:  # [N, 3]
     """CIR colour [N, 3] in [0, 1] of every Gaussian: its decoded reflectance for a nadir view
     (ω_o = +z) under the training sun, bands 850/650/550 nm divided by the CIR scale."""
-    n = bm.n_gaussians
+    n = tm.n_gaussians
     up = torch.tensor([0.0, 0.0, 1.0])
-    omega_i = bm.sun_direction()
+    omega_i = tm.sun_direction()
     out = np.zeros((n, 3), np.float32)
     idx_all = torch.arange(n)
     for i in range(0, n, chunk):
         idx = idx_all[i:i + chunk]
         oo = up.expand(int(idx.numel()), 3).contiguous()
-        out[i:i + len(idx)] = np.clip(_cir_of(bm, idx, oo, omega_i), 0.0, 1.0)
+        out[i:i + len(idx)] = np.clip(_cir_of(tm, idx, oo, omega_i), 0.0, 1.0)
     return out
 
 
-def hemisphere_directions(n: int, max_zenith_deg: float = 80.0) -> np.ndarray:
+def hemisphere_directions(n: int, max_zenith_deg: float = 80.0) -> np.ndarray:  # [n, 3]
     """``n`` unit directions [n, 3] (z > 0) spread evenly (Fibonacci spiral, equal solid angle)
     over the cap of zenith ≤ ``max_zenith_deg``; the first is nadir."""
     n = max(int(n), 1)
@@ -90,12 +106,12 @@ def hemisphere_directions(n: int, max_zenith_deg: float = 80.0) -> np.ndarray:
     return np.stack([r * np.sin(phi), r * np.cos(phi), cz], 1)
 
 
-def _sh_cir_exact(bm: BRFModel) -> tuple[np.ndarray, np.ndarray] | None:
+def _sh_cir_exact(tm: TrainedModel) -> tuple[np.ndarray, np.ndarray] | None:
     """(f_dc [N, 3], f_rest [N, 3, 15]) copied from a CIR-space SH head (no decoder), else None."""
-    cfg = bm.head_cfg
-    if cfg is None or cfg.kind != "sh" or not (bm.appearance == "cir" or bm.decoder is None):
+    cfg = tm.head_cfg
+    if cfg is None or cfg.kind != "sh" or not (tm.appearance == "cir" or tm.decoder is None):
         return None
-    sh = bm.head_params()["sh"].detach().double().numpy()        # [N, K, 3], argument ω_o, no +0.5 offset
+    sh = tm.head_params()["sh"].detach().double().numpy()        # [N, K, 3], argument ω_o, no +0.5 offset
     if sh.shape[-1] != 3:
         return None
     k = sh.shape[1]
@@ -108,7 +124,7 @@ def _sh_cir_exact(bm: BRFModel) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 @torch.no_grad()
-def fit_cir_sh(bm: BRFModel, n_directions: int = 48, max_zenith_deg: float = 80.0, chunk: int = 2048
+def fit_cir_sh(tm: TrainedModel, n_directions: int = 48, max_zenith_deg: float = 80.0, chunk: int = 2048
                ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Degree-3 SH fit of every Gaussian's view-dependent CIR colour (see the module docstring).
 
@@ -117,9 +133,7 @@ def fit_cir_sh(bm: BRFModel, n_directions: int = 48, max_zenith_deg: float = 80.
     CIR colour of the model for view direction ω_o to the accuracy reported in ``info``
     (RMS and max residual over the sampled directions, colour units).
     """
-    from brfgs.brdf.sh import sh_basis
-
-    exact = _sh_cir_exact(bm)
+    exact = _sh_cir_exact(tm)
     if exact is not None:
         return exact[0].astype(np.float32), exact[1].astype(np.float32), {"method": "copied (CIR SH head)"}
     up = hemisphere_directions(n_directions, max_zenith_deg)                       # ω_o, [K, 3]
@@ -127,8 +141,8 @@ def fit_cir_sh(bm: BRFModel, n_directions: int = 48, max_zenith_deg: float = 80.
     basis = sh_basis(3, torch.from_numpy(-both)).numpy()                           # viewer argument −ω_o, [2K, 16]
     pinv = np.linalg.pinv(basis)                                                    # [16, 2K]
     kdir = len(up)
-    omega_i = bm.sun_direction()
-    n = bm.n_gaussians
+    omega_i = tm.sun_direction()
+    n = tm.n_gaussians
     fdc = np.zeros((n, 3), np.float32)
     rest = np.zeros((n, 3, N_SH_REST), np.float32)
     sq, mx, cnt = 0.0, 0.0, 0
@@ -138,7 +152,7 @@ def fit_cir_sh(bm: BRFModel, n_directions: int = 48, max_zenith_deg: float = 80.
         m = int(idx.numel())
         oo = oo_all[None].expand(m, kdir, 3).reshape(-1, 3).contiguous()
         ii = idx[:, None].expand(m, kdir).reshape(-1)
-        c = np.clip(_cir_of(bm, ii, oo, omega_i), 0.0, 1.0).reshape(m, kdir, 3) - 0.5   # viewer adds 0.5
+        c = np.clip(_cir_of(tm, ii, oo, omega_i), 0.0, 1.0).reshape(m, kdir, 3) - 0.5   # viewer adds 0.5
         target = np.concatenate([c, c], 1)                                          # [m, 2K, 3]
         coef = np.einsum("jk,mkc->mjc", pinv, target)                               # [m, 16, 3]
         res = np.einsum("kj,mjc->mkc", basis, coef) - target
@@ -153,46 +167,32 @@ def fit_cir_sh(bm: BRFModel, n_directions: int = 48, max_zenith_deg: float = 80.
     return fdc, rest, info
 
 
-@torch.no_grad()
-def write_ply(path: str | Path, bm: BRFModel, colours: np.ndarray | None = None, *, view_dependence: str = "fit",
-              n_directions: int = 48, info: dict | None = None) -> Path:
-    """Write the Gaussians of ``bm`` as a 3DGS PLY with BRF extras (see the module docstring).
+def _ply_colours(tm: TrainedModel, colours: np.ndarray | None, view_dependence: str, n_directions: int,
+                 info: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(f_dc [N, 3], f_rest [N, 3, 15]) of the PLY (see the module docstring); ``info`` gets the method."""
+    view_dep = tm.appearance == "neural" or (tm.head_cfg is not None and tm.head_cfg.view_dependent)
+    if colours is None and view_dependence == "fit" and view_dep:
+        fdc, rest, fit = fit_cir_sh(tm, n_directions=n_directions)
+        info.update(fit)
+        return fdc, rest
+    if colours is None:
+        colours = gaussian_cir_colours(tm)
+        info["method"] = "colour at nadir view (no view dependence)"
+    else:
+        info["method"] = "colours given (no view dependence)"
+    return (np.asarray(colours, np.float32) - 0.5) / SH_C0, np.zeros((tm.n_gaussians, 3, N_SH_REST), np.float32)
 
-    ``colours`` [N, 3] in [0, 1]: explicit view-independent colours (f_rest zero).
-    ``info``: a dict that receives how the colours were made (method, fit residuals).
-    """
-    from plyfile import PlyData, PlyElement
 
-    from brfgs.brdf.geometry import gaussian_normals
-
-    if view_dependence not in VIEW_DEPENDENCE:
-        raise UserError(f"view dependence must be one of {', '.join(VIEW_DEPENDENCE)}, got {view_dependence!r}",
-                        field="--view-dependence")
-    info = {} if info is None else info
-
-    m = bm.model
-    n = m.n
-    means = m.means.detach().float()
+def _ply_columns(tm: TrainedModel, fdc: np.ndarray, rest: np.ndarray) -> dict[str, np.ndarray]:
+    """{property: [N]} in PLY order: the standard 3DGS set, then the BRF parameters."""
+    m = tm.gaussians
     quats = m.quats.detach().float()
     qn = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     log_scales = m.params["log_scales"].detach().float()
-    up = torch.tensor([0.0, 0.0, 1.0]).expand(n, 3)
-    normals = gaussian_normals(quats, log_scales.exp(), up)
-    rest = np.zeros((n, 3, N_SH_REST), np.float32)
-    view_dep = bm.appearance == "neural" or (bm.head_cfg is not None and bm.head_cfg.view_dependent)
-    if colours is None and view_dependence == "fit" and view_dep:
-        fdc, rest, fit = fit_cir_sh(bm, n_directions=n_directions)
-        info.update(fit)
-    else:
-        if colours is None:
-            colours = gaussian_cir_colours(bm)
-            info["method"] = "colour at nadir view (no view dependence)"
-        else:
-            info["method"] = "colours given (no view dependence)"
-        fdc = (np.asarray(colours, np.float32) - 0.5) / SH_C0
+    normals = gaussian_normals(quats, log_scales.exp(), torch.tensor([0.0, 0.0, 1.0]).expand(m.n, 3))
     cols: dict[str, np.ndarray] = {}
     for j, k in enumerate("xyz"):
-        cols[k] = means[:, j].numpy()
+        cols[k] = m.means.detach().float()[:, j].numpy()
     for j, k in enumerate(("nx", "ny", "nz")):
         cols[k] = normals[:, j].numpy()
     for j in range(3):
@@ -206,31 +206,49 @@ def write_ply(path: str | Path, bm: BRFModel, colours: np.ndarray | None = None,
     for j in range(4):
         cols[f"rot_{j}"] = qn[:, j].numpy()
     for c in ("iso", "vol", "geo", "spec"):
-        key = f"z_{c}"
-        if key in m.params:
-            z = m.params[key].detach().float().numpy()
-            for j in range(z.shape[1]):
-                cols[f"{key}_{j}"] = z[:, j]
+        if f"z_{c}" in m.params:
+            z = m.params[f"z_{c}"].detach().float().numpy()
+            cols.update({f"z_{c}_{j}": z[:, j] for j in range(z.shape[1])})
     if "sh" in m.params and m.params["sh"].dim() == 3:
         sh = m.params["sh"].detach().float().numpy()
-        for k in range(sh.shape[1]):
-            for j in range(sh.shape[2]):
-                cols[f"sh_{k}_{j}"] = sh[:, k, j]
-    if "rho_raw" in m.params and bm.head_cfg is not None:
-        from brfgs.brdf.head import roughness_from_raw
+        cols.update({f"sh_{k}_{j}": sh[:, k, j] for k in range(sh.shape[1]) for j in range(sh.shape[2])})
+    if "rho_raw" in m.params and tm.head_cfg is not None:
+        cols["roughness"] = roughness_from_raw(m.params["rho_raw"].detach().float(), tm.head_cfg.rho_min).numpy()
+    return cols
 
-        cols["roughness"] = roughness_from_raw(m.params["rho_raw"].detach().float(), bm.head_cfg.rho_min).numpy()
-    arr = np.empty(n, dtype=[(k, "<f4") for k in cols])
+
+@torch.no_grad()
+def write_ply(
+    path: str | Path,
+    tm: TrainedModel,
+    colours: np.ndarray | None = None,  # [N, 3] in [0, 1]
+    *,
+    view_dependence: str = "fit",
+    n_directions: int = 48,
+    info: dict | None = None,
+) -> Path:
+    """Write the Gaussians of ``tm`` as a 3DGS PLY with BRF extras (see the module docstring).
+
+    ``colours`` [N, 3] in [0, 1]: explicit view-independent colours (f_rest zero).
+    ``info``: a dict that receives how the colours were made (method, fit residuals).
+    """
+    if view_dependence not in VIEW_DEPENDENCE:
+        raise UserError(f"view dependence must be one of {', '.join(VIEW_DEPENDENCE)}, got {view_dependence!r}",
+                        field="--view-dependence")
+    info = {} if info is None else info
+    fdc, rest = _ply_colours(tm, colours, view_dependence, n_directions, info)
+    cols = _ply_columns(tm, fdc, rest)
+    arr = np.empty(tm.n_gaussians, dtype=[(k, "<f4") for k in cols])
     for k, v in cols.items():
         arr[k] = np.asarray(v, np.float32)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     el = PlyElement.describe(arr, "vertex")
-    comments = [f"brfgs BRF-GS export: scene {bm.scene_name}",
+    comments = [f"brfgs BRF-GS export: scene {tm.scene_name}",
                 f"f_dc/f_rest = CIR (850/650/550 nm) colour as SH degree 3: {info['method']}",
-                f"wavelengths_nm {bm.wavelengths_nm.min():.1f}-{bm.wavelengths_nm.max():.1f} "
-                f"({len(bm.wavelengths_nm)} bands); z_* are latent (decode with the model file)"]
+                f"wavelengths_nm {tm.wavelengths_nm.min():.1f}-{tm.wavelengths_nm.max():.1f} "
+                f"({len(tm.wavelengths_nm)} bands); z_* are latent (decode with the model file)"]
     PlyData([el], text=False, byte_order="<", comments=comments).write(str(tmp))
     tmp.replace(path)
     return path
@@ -238,8 +256,6 @@ def write_ply(path: str | Path, bm: BRFModel, colours: np.ndarray | None = None,
 
 def read_ply(path: str | Path) -> dict[str, np.ndarray]:
     """{property: [N] float32} of a PLY's ``vertex`` element (any 3DGS-style file)."""
-    from plyfile import PlyData
-
     path = Path(path)
     if not path.is_file():
         raise UserError("PLY file not found", file=path)
@@ -249,3 +265,54 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
     except Exception as exc:
         raise UserError(f"not a readable PLY with a 'vertex' element ({exc})", file=path) from None
     return {name: np.asarray(v[name]) for name in v.dtype.names}
+
+
+# ----------------------------------------------------------------------------------------
+# the export command
+
+
+@dataclass
+class ExportOptions:
+    """Options of ``brfgs export`` (see :func:`export_model`)."""
+
+    view_dependence: str = "fit"   # "fit" | "none"
+    sh_directions: int = 48        # view directions sampled per Gaussian for the SH fit
+    overwrite: bool = False
+
+
+def _copy_model_file(src: Path, dst: Path) -> None:
+    """Copy the model file atomically (nothing when ``dst`` is ``src``)."""
+    if dst.resolve() != src.resolve():
+        shutil.copyfile(src, dst.with_name(dst.name + ".tmp"))
+        dst.with_name(dst.name + ".tmp").replace(dst)
+
+
+def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = None) -> dict:
+    """``brfgs export``: write OUT/gaussians.ply (:func:`write_ply`), a copy of the model file that
+    loads on its own (OUT/model.safetensors) and OUT/export.json; returns what export.json holds."""
+    opts = ExportOptions() if opts is None else opts
+    if opts.view_dependence not in VIEW_DEPENDENCE:
+        raise UserError(f"expected 'fit' or 'none', got {opts.view_dependence!r}", field="--view-dependence")
+    tm = TrainedModel.load(run)
+    out = prepare_output_dir(Path(out), "export.json", opts.overwrite, tm.scene_root)
+    src = Path(tm.source)
+    colour_info: dict = {}
+    t0 = time.perf_counter()
+    ply = write_ply(out / "gaussians.ply", tm, view_dependence=opts.view_dependence, n_directions=opts.sh_directions,
+                    info=colour_info)
+    t_ply = time.perf_counter() - t0
+    dst = out / "model.safetensors"
+    _copy_model_file(src, dst)
+    TrainedModel.load(dst)  # the copy loads on its own (no scene needed)
+    info = {"source": str(src), "ply": ply.name, "model": dst.name,
+            "model_sha256": hashlib.sha256(dst.read_bytes()).hexdigest(),
+            "n_gaussians": tm.n_gaussians, "latent_dim": tm.gaussians.latent_dim, "bands": len(tm.wavelengths_nm),
+            "ply_properties": "x y z nx ny nz f_dc_0..2 f_rest_0..44 opacity scale_0..2 rot_0..3 (standard 3DGS) "
+                              "+ z_iso_*, z_vol_*, z_geo_*, z_spec_*, roughness (BRF-GS) or sh_<k>_<j> (SH baseline)",
+            "ply_colours": {"space": "CIR composite (850/650/550 nm as R/G/B, scaled like the training data)",
+                            "sun_zenith_deg": tm.sun_zenith_deg, "sun_azimuth_deg": tm.sun_azimuth_deg,
+                            **colour_info},
+            "timings_s": {"ply": t_ply},
+            "model_format": "safetensors + JSON metadata (brfgs-gaussians/1); loading never executes code"}
+    (out / "export.json").write_text(json.dumps(info, indent=1))
+    return info

@@ -16,10 +16,13 @@ not finite in either image are always excluded.
 
 from __future__ import annotations
 
+import glob
 import math
+import os
 from typing import Any
 
 import numpy as np
+import torch
 
 METRIC_KEYS = ("psnr", "ssim", "lpips", "sam", "psnr_spectral")
 
@@ -156,18 +159,13 @@ _LPIPS_MODEL: Any = None
 def lpips_available() -> tuple[bool, str]:
     """(True, "") when LPIPS can be computed offline, else (False, reason)."""
     try:
-        import lpips  # noqa: F401
+        import lpips  # noqa: F401  # lazy: optional package, loads torchvision
     except Exception:
         return False, "the 'lpips' package is not installed"
     try:
-        import torch
-
         hub = torch.hub.get_dir()
     except Exception as exc:  # pragma: no cover
         return False, f"torch hub directory unavailable: {exc}"
-    import glob
-    import os
-
     if not glob.glob(os.path.join(hub, "checkpoints", "alexnet-*.pth")):
         return False, f"AlexNet weights for LPIPS not found under {hub}/checkpoints (no download attempted)"
     return True, ""
@@ -179,10 +177,8 @@ def lpips_metric(pred_rgb: np.ndarray, target_rgb: np.ndarray, mask: np.ndarray 
     if not ok:
         return None, reason
     global _LPIPS_MODEL
-    import torch
-
     try:
-        import lpips
+        import lpips  # lazy: optional package, loads torchvision
 
         if _LPIPS_MODEL is None:
             _LPIPS_MODEL = lpips.LPIPS(net="alex", verbose=False).eval()

@@ -14,11 +14,20 @@
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+from numpy.typing import ArrayLike
+from PIL import Image
+
+matplotlib.use("Agg", force=False)  # figures are written to files; must precede pyplot
+import matplotlib.pyplot as plt  # noqa: E402
 
 __all__ = [
+    "PolarGrid",
     "write_csv",
     "save_rgb_png",
     "save_depth_png",
@@ -31,16 +40,25 @@ __all__ = [
 ]
 
 
-def _plt():
-    import matplotlib
+@dataclass
+class PolarGrid:
+    """Values [Z, A, nb] at the cell centres of a polar grid: zenith_deg [Z], azimuth_deg [A]."""
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    zenith_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    values: np.ndarray
 
-    return plt
+
+@dataclass
+class _Sky:
+    """What every polar panel shares: the largest zenith shown and the sun (degrees)."""
+
+    zmax: float
+    sun_zenith_deg: float
+    sun_azimuth_deg: float
 
 
-def write_csv(path: str | Path, header: list[str], rows) -> Path:
+def write_csv(path: str | Path, header: list[str], rows: Iterable[Sequence]) -> Path:
     """Write rows (iterables) under ``header``; numbers with 6 significant digits, NaN as empty."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -55,8 +73,6 @@ def write_csv(path: str | Path, header: list[str], rows) -> Path:
 
 def save_rgb_png(path: str | Path, rgb: np.ndarray) -> Path:
     """RGB [H, W, 3] in [0, 1] (NaN → black) as an 8-bit PNG."""
-    from PIL import Image
-
     a = np.nan_to_num(np.asarray(rgb, float), nan=0.0)
     img = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
     path = Path(path)
@@ -66,7 +82,6 @@ def save_rgb_png(path: str | Path, rgb: np.ndarray) -> Path:
 
 def save_depth_png(path: str | Path, depth_m: np.ndarray, alpha: np.ndarray | None = None) -> Path:
     """Depth map with the viridis colormap over its 2–98 % range (near = bright); empty = black."""
-    plt = _plt()
     d = np.asarray(depth_m, float)
     ok = np.isfinite(d) & (d > 0)
     if alpha is not None:
@@ -89,7 +104,6 @@ def save_normal_png(path: str | Path, normal: np.ndarray) -> Path:
 
 def save_map_png(path: str | Path, band: np.ndarray, title: str, *, diverging: bool = False, label: str = "") -> Path:
     """One band [H, W] as a PNG with a colour bar (diverging: symmetric RdBu_r around 0)."""
-    plt = _plt()
     b = np.asarray(band, float)
     ok = np.isfinite(b)
     fig, ax = plt.subplots(figsize=(5.2, 4.4), dpi=100)
@@ -103,21 +117,18 @@ def save_map_png(path: str | Path, band: np.ndarray, title: str, *, diverging: b
     ax.set_title(title, fontsize=9)
     ax.set_xticks([])
     ax.set_yticks([])
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, path, "")
 
 
 def plot_principal_plane(path: str | Path, signed_zenith_deg: np.ndarray, values: np.ndarray,
                          wavelengths_nm: np.ndarray, sun_zenith_deg: float, *, title: str = "",
-                         obs_signed_zenith_deg=None, obs_values=None, truth_values=None,
-                         truth_signed_zenith_deg=None, truth_curve_signed_zenith_deg=None,
-                         truth_curve_values=None) -> Path:
+                         obs_signed_zenith_deg: ArrayLike | None = None, obs_values: ArrayLike | None = None,
+                         truth_values: ArrayLike | None = None, truth_signed_zenith_deg: ArrayLike | None = None,
+                         truth_curve_signed_zenith_deg: ArrayLike | None = None,
+                         truth_curve_values: ArrayLike | None = None) -> Path:
     """Fig. 8: one panel per band. values [D, nb]; obs_values [M, nb] (observations nearest the
     plane); truth_values [K, nb] (truth at those frames); truth_curve_values [T, nb] (the
     simulator's truth rendered along the plane)."""
-    plt = _plt()
     nb = values.shape[1]
     ncol = min(nb, 4)
     nrow = int(np.ceil(nb / ncol))
@@ -148,18 +159,17 @@ def plot_polar(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray
                wavelengths_nm: np.ndarray, sun_zenith_deg: float, sun_azimuth_deg: float, *, title: str = "",
                max_zenith_deg: float | None = None) -> Path:
     """Fig. 9: polar heatmaps [Z, A, nb] (cell centres), north up, azimuth clockwise; sun = red star."""
-    plt = _plt()
     nb = values.shape[2]
     ncol = min(nb, 4)
     nrow = int(np.ceil(nb / ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(3.7 * ncol, 3.5 * nrow), dpi=100, squeeze=False,
                              subplot_kw={"projection": "polar"})
     zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(zenith_deg, azimuth_deg)[0][-1])
+    sky = _Sky(zmax, sun_zenith_deg, sun_azimuth_deg)
     for j in range(nb):
         lo, hi = _robust_range(values[:, :, j])
-        _polar_panel(fig, axes[j // ncol][j % ncol], zenith_deg, azimuth_deg, values[:, :, j], vmin=lo, vmax=hi,
-                     cmap="inferno", zmax=zmax, sun_zenith_deg=sun_zenith_deg, sun_azimuth_deg=sun_azimuth_deg,
-                     title=f"{wavelengths_nm[j]:.0f} nm")
+        _polar_panel(fig, axes[j // ncol][j % ncol], PolarGrid(zenith_deg, azimuth_deg, values[:, :, j]), sky,
+                     vmin=lo, vmax=hi, cmap="inferno", title=f"{wavelengths_nm[j]:.0f} nm")
     return _finish(fig, path, title, axes, nb)
 
 
@@ -170,7 +180,7 @@ def _robust_range(v: np.ndarray) -> tuple[float, float]:
     return float(lo), float(max(hi, lo + 1e-9))
 
 
-def _finish(fig, path: str | Path, title: str, axes=None, used: int = 0) -> Path:
+def _finish(fig, path: str | Path, title: str, axes=None, used: int = 0, **savefig) -> Path:
     """Blank the unused panels of a grid ``axes`` (beyond the first ``used``), add the title, save, close."""
     if axes is not None:
         ncol = len(axes[0])
@@ -179,8 +189,8 @@ def _finish(fig, path: str | Path, title: str, axes=None, used: int = 0) -> Path
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path)
-    _plt().close(fig)
+    fig.savefig(path, **savefig)
+    plt.close(fig)
     return Path(path)
 
 
@@ -195,45 +205,56 @@ def _polar_edges(zenith_deg: np.ndarray, azimuth_deg: np.ndarray) -> tuple[np.nd
     return z_edges, a_edges
 
 
-def _polar_panel(fig, ax, zenith_deg, azimuth_deg, v, *, vmin, vmax, cmap, zmax, sun_zenith_deg, sun_azimuth_deg,
-                 title, label=""):
+def _polar_panel(fig, ax, grid: PolarGrid, sky: _Sky, *, vmin: float, vmax: float, cmap: str, title: str,
+                 label: str = "") -> None:
+    """One polar heatmap of ``grid.values`` [Z, A] (north up, azimuth clockwise), the sun as a red star."""
     ax.set_theta_zero_location("N")
     ax.set_theta_direction(-1)
-    z_edges, a_edges = _polar_edges(zenith_deg, azimuth_deg)
-    pc = ax.pcolormesh(a_edges, z_edges, np.ma.masked_invalid(v), cmap=cmap, vmin=vmin, vmax=vmax, shading="flat")
-    if sun_zenith_deg <= zmax:
-        ax.plot([np.deg2rad(sun_azimuth_deg)], [sun_zenith_deg], marker="*", color="red", ms=11,
+    z_edges, a_edges = _polar_edges(grid.zenith_deg, grid.azimuth_deg)
+    pc = ax.pcolormesh(a_edges, z_edges, np.ma.masked_invalid(grid.values), cmap=cmap, vmin=vmin, vmax=vmax,
+                       shading="flat")
+    if sky.sun_zenith_deg <= sky.zmax:
+        ax.plot([np.deg2rad(sky.sun_azimuth_deg)], [sky.sun_zenith_deg], marker="*", color="red", ms=11,
                 markeredgecolor="white")
-    ax.set_ylim(0, zmax)
+    ax.set_ylim(0, sky.zmax)
     ax.set_title(title, fontsize=8, pad=10)
     ax.tick_params(labelsize=6)
     fig.colorbar(pc, ax=ax, shrink=0.7, pad=0.1, label=label)
 
 
-def plot_polar_truth(path: str | Path, zenith_deg: np.ndarray, azimuth_deg: np.ndarray, values: np.ndarray,
-                     truth_zenith_deg: np.ndarray, truth_azimuth_deg: np.ndarray, truth_values: np.ndarray,
-                     model_at_truth: np.ndarray, wavelengths_nm: np.ndarray, sun_zenith_deg: float,
-                     sun_azimuth_deg: float, *, title: str = "", max_zenith_deg: float | None = None) -> Path:
-    """One row per band: model polar map [Z, A, nb] | simulator truth [Zt, At, nb] (same colour
-    scale) | model − truth on the truth grid (``model_at_truth`` [Zt, At, nb], diverging scale)."""
-    plt = _plt()
-    nb = values.shape[2]
+def plot_polar_truth(
+    path: str | Path,
+    model: PolarGrid,  # values [Z, A, nb]
+    truth: PolarGrid,  # values [Zt, At, nb]
+    model_at_truth: np.ndarray,  # [Zt, At, nb]
+    wavelengths_nm: np.ndarray,  # [nb]
+    sun_zenith_deg: float,
+    sun_azimuth_deg: float,
+    *,
+    title: str = "",
+    max_zenith_deg: float | None = None,
+) -> Path:
+    """One row per band: the model's polar map | the simulator's truth on its (coarser) grid (same
+    colour scale) | model − truth on the truth grid (``model_at_truth``, diverging scale)."""
+    nb = model.values.shape[2]
     fig, axes = plt.subplots(nb, 3, figsize=(11.0, 3.4 * nb), dpi=100, squeeze=False,
                              subplot_kw={"projection": "polar"})
-    zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(zenith_deg, azimuth_deg)[0][-1])
+    zmax = max_zenith_deg if max_zenith_deg is not None else float(_polar_edges(model.zenith_deg,
+                                                                                model.azimuth_deg)[0][-1])
+    sky = _Sky(zmax, sun_zenith_deg, sun_azimuth_deg)
     for j in range(nb):
-        lo, hi = _robust_range(np.concatenate([values[:, :, j].ravel(), truth_values[:, :, j].ravel()]))
+        mv, tv = model.values[:, :, j], truth.values[:, :, j]
+        lo, hi = _robust_range(np.concatenate([mv.ravel(), tv.ravel()]))
         wl = f"{wavelengths_nm[j]:.0f} nm"
-        kw = dict(zmax=zmax, sun_zenith_deg=sun_zenith_deg, sun_azimuth_deg=sun_azimuth_deg)
-        _polar_panel(fig, axes[j][0], zenith_deg, azimuth_deg, values[:, :, j], vmin=lo, vmax=hi, cmap="inferno",
-                     title=f"BRF-GS, {wl}", label="BRF", **kw)
-        _polar_panel(fig, axes[j][1], truth_zenith_deg, truth_azimuth_deg, truth_values[:, :, j], vmin=lo, vmax=hi,
-                     cmap="inferno", title=f"truth (simulator), {wl}", label="BRF", **kw)
-        d = model_at_truth[:, :, j] - truth_values[:, :, j]
+        _polar_panel(fig, axes[j][0], PolarGrid(model.zenith_deg, model.azimuth_deg, mv), sky, vmin=lo, vmax=hi,
+                     cmap="inferno", title=f"BRF-GS, {wl}", label="BRF")
+        _polar_panel(fig, axes[j][1], PolarGrid(truth.zenith_deg, truth.azimuth_deg, tv), sky, vmin=lo, vmax=hi,
+                     cmap="inferno", title=f"truth (simulator), {wl}", label="BRF")
+        d = model_at_truth[:, :, j] - tv
         okd = np.isfinite(d)
         m = float(np.nanmax(np.abs(d[okd]))) if okd.any() else 1.0
-        _polar_panel(fig, axes[j][2], truth_zenith_deg, truth_azimuth_deg, d, vmin=-max(m, 1e-9), vmax=max(m, 1e-9),
-                     cmap="RdBu_r", title=f"BRF-GS − truth, {wl}", label="ΔBRF", **kw)
+        _polar_panel(fig, axes[j][2], PolarGrid(truth.zenith_deg, truth.azimuth_deg, d), sky, vmin=-max(m, 1e-9),
+                     vmax=max(m, 1e-9), cmap="RdBu_r", title=f"BRF-GS − truth, {wl}", label="ΔBRF")
     return _finish(fig, path, title)
 
 
@@ -241,7 +262,6 @@ def plot_spectra(path: str | Path, wavelengths_nm: np.ndarray, reconstructed: np
                  observed: np.ndarray | None, log_err: np.ndarray | None, *, truth: np.ndarray | None = None,
                  title: str = "") -> Path:
     """Fig. 7: mean spectra (top) and logarithmic error ln(rec/obs) (bottom)."""
-    plt = _plt()
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(6, 5), dpi=100, sharex=True,
                                  gridspec_kw={"height_ratios": [2, 1]})
     a1.plot(wavelengths_nm, reconstructed, "-", color="C0", label="reconstructed")
@@ -260,15 +280,11 @@ def plot_spectra(path: str | Path, wavelengths_nm: np.ndarray, reconstructed: np
     a2.grid(alpha=0.3)
     if title:
         a1.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, path, "")
 
 
 def save_cir_comparison(path: str | Path, ref: np.ndarray, pred: np.ndarray, title: str) -> Path:
     """Reference, render (CIR composites [H, W, 3]) and their mean absolute error side by side (PNG)."""
-    plt = _plt()
     err = np.abs(np.nan_to_num(pred) - np.nan_to_num(ref)).mean(-1)
     fig, ax = plt.subplots(1, 3, figsize=(10, 3.6))
     ax[0].imshow(np.nan_to_num(np.clip(ref, 0, 1)))
@@ -281,8 +297,5 @@ def save_cir_comparison(path: str | Path, ref: np.ndarray, pred: np.ndarray, tit
     for a in ax:
         a.axis("off")
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return Path(path)
+    return _finish(fig, path, "", dpi=100)

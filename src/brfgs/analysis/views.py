@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, look_at_c2w
@@ -28,6 +29,7 @@ __all__ = [
     "orbit_path",
     "zenith_sweep_path",
     "view_angles_from_points",
+    "intrinsics_json",
 ]
 
 MAX_VIEW_ZENITH_DEG = 89.0  # a camera must look at the ground from above the horizon
@@ -62,7 +64,7 @@ def check_azimuth_deg(value: float, field: str) -> float:
 
 
 def view_camera(view_zenith_deg: float, view_azimuth_deg: float, distance_m: float,
-                target_m=None, *, size: int | tuple[int, int] = 128, fov_deg: float | None = None,
+                target_m: ArrayLike | None = None, *, size: int | tuple[int, int] = 128, fov_deg: float | None = None,
                 half_extent_m: float | None = None) -> tuple[np.ndarray, Intrinsics]:
     """Pinhole camera looking at ``target_m`` [3] from the direction (zenith, azimuth).
 
@@ -105,7 +107,8 @@ def hemisphere_grid(n_azimuth: int = 60, n_zenith: int = 24, max_zenith_deg: flo
     return (np.arange(n_zenith) + 0.5) * dz, (np.arange(n_azimuth) + 0.5) * da
 
 
-def principal_plane_directions(signed_zenith_deg, sun_azimuth_deg: float) -> tuple[np.ndarray, np.ndarray]:
+def principal_plane_directions(signed_zenith_deg: ArrayLike,  # [n] deg
+                               sun_azimuth_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """(view_zenith_deg [n], view_azimuth_deg [n]) for signed zeniths on the principal plane.
 
     Positive signed zenith: the sensor on the sun's side (azimuth = sun azimuth, backscatter);
@@ -139,7 +142,7 @@ def zenith_sweep_path(view_azimuth_deg: float, max_zenith_deg: float = 60.0, n_f
     return [(float(z), float(a)) for z, a in zip(zen, az)]
 
 
-def view_angles_from_points(camera_centre_m, target_m) -> tuple[float, float]:
+def view_angles_from_points(camera_centre_m: ArrayLike, target_m: ArrayLike) -> tuple[float, float]:
     """(zenith_deg, azimuth_deg) of the direction from ``target_m`` [3] toward ``camera_centre_m`` [3]."""
     d = np.asarray(camera_centre_m, float) - np.asarray(target_m, float)
     n = float(np.linalg.norm(d))
@@ -148,3 +151,8 @@ def view_angles_from_points(camera_centre_m, target_m) -> tuple[float, float]:
     zen = math.degrees(math.acos(max(-1.0, min(1.0, d[2] / n))))
     az = math.degrees(math.atan2(d[0], d[1])) % 360.0
     return zen, az
+
+
+def intrinsics_json(intr: Intrinsics) -> dict:
+    """The pinhole intrinsics as a JSON object (fl_x, fl_y, cx, cy in px; w, h)."""
+    return {"fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h}

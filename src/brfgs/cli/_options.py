@@ -1,4 +1,4 @@
-"""Options shared by several commands (scene reading)."""
+"""Options shared by several commands (scene reading; the analysis of a trained model)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,13 @@ from pathlib import Path
 
 import typer
 
+from brfgs.analysis.output import check_output_dir
 from brfgs.errors import UserError
+
+__all__ = ["SceneArg", "DownscaleOpt", "ValueRangeOpt", "SplitSeedOpt", "RunArg", "BackendOpt", "QuietOpt",
+           "OverwriteOpt", "parse_value_range", "load_scene", "check_output_dir"]
+
+# The function bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
 SceneArg = typer.Argument(..., help="Scene folder (transforms.json + images/, see README 'Data layout').",
                           show_default=False)
@@ -14,6 +20,12 @@ DownscaleOpt = typer.Option(1, "--downscale", min=1, help="Integer area-average 
 ValueRangeOpt = typer.Option("-0.5,10", "--value-range", metavar="LO,HI",
                              help="Plausible reflectance range; finite values outside it are an error.")
 SplitSeedOpt = typer.Option(0, "--split-seed", help="Seed of the deterministic 6:1 train/test split.")
+
+RunArg = typer.Argument(..., help="Run folder of `brfgs train` (with model.safetensors) or a model file.",
+                        show_default=False)
+BackendOpt = typer.Option("auto", "--backend", help="Rasterizer backend: auto | torch | cpu | cuda.")
+QuietOpt = typer.Option(False, "--quiet", "-q", help="No progress bars.")
+OverwriteOpt = typer.Option(False, "--overwrite", help="Replace the results of an earlier run of this command in --out.")
 
 
 def parse_value_range(text: str) -> tuple[float, float]:
@@ -33,29 +45,3 @@ def load_scene(scene: Path, downscale: int = 1, value_range: str = "-0.5,10", sp
 
     return read_scene(scene, downscale=downscale, value_range=parse_value_range(value_range),
                       split_seed=split_seed, **kw)
-
-
-def check_output_dir(out: Path, scene_root: Path | None = None, overwrite: bool = False,
-                     marker: str | None = None) -> None:
-    """Refuse an output folder inside the scene folder, or a non-empty one unless ``overwrite``.
-
-    ``marker``: a file whose presence means "a finished result is here" — only it blocks
-    (other outputs may be regenerated) when given.
-    """
-    if scene_root is not None:
-        try:
-            out.resolve().relative_to(scene_root.resolve())
-            raise UserError("output folder lies inside the scene folder; input data is never written to",
-                            file=out)
-        except ValueError:
-            pass
-    if out.exists() and not out.is_dir():
-        raise UserError("output path exists and is not a folder", file=out)
-    if overwrite or not out.exists():
-        return
-    if marker is not None:
-        if (out / marker).exists():
-            raise UserError(f"a finished result ({marker}) is already here; pass --overwrite to replace it",
-                            file=out)
-    elif any(out.iterdir()):
-        raise UserError("output folder exists and is not empty; pass --overwrite to replace it", file=out)

@@ -9,6 +9,8 @@ import typer
 
 from brfgs.cli import _options as opt
 
+# The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
+
 StrategyOpt = typer.Option(
     "efc", "--strategy", "-s",
     help="efc (top-k by EFC, the method), efc-top1, efc-top3, all, rgb, cir, central, max-snr, max-features.")

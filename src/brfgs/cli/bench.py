@@ -1,14 +1,25 @@
-"""``brfgs bench``: speed and memory benchmarks (render: the rasterizer; kernels: the BRDF head)."""
+"""``brfgs bench``: speed and memory benchmarks (render: the rasterizer; kernels: the BRDF head;
+analysis: an arbitrary view and a polar BRF map)."""
 
 from __future__ import annotations
 
+import json
+import os
+import platform
 from pathlib import Path
 
 import typer
 
 from brfgs.errors import UserError
 
+# The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
+
 bench_app = typer.Typer(help="Speed and memory benchmarks; results go in BENCHMARKS.md.", no_args_is_help=True)
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1))
 
 
 def _int_list(text: str, field: str) -> list[int]:
@@ -35,10 +46,6 @@ def render_cmd(
     json_path: Path = typer.Option(None, "--json", help="Also write the rows as JSON to this file."),
 ):
     """Forward and forward+backward ms per frame of each backend, × vs torch (same run), peak memory."""
-    import json
-    import os
-    import platform
-
     from brfgs.render import configure_threads
     from brfgs.render.bench import format_table, run_bench
 
@@ -68,8 +75,7 @@ def render_cmd(
         doc = {"machine": {"processor": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                            "threads": n_threads, "loadavg_start": list(load), "loadavg_end": list(load_end)},
                "rows": [r.to_json() for r in rows]}
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(doc, indent=1))
+        _write_json(json_path, doc)
         typer.echo(f"wrote {json_path}")
 
 
@@ -82,9 +88,6 @@ def kernels_cmd(
     json_path: Path = typer.Option(None, "--json", help="Also write the rows as JSON to this file."),
 ):
     """BRDF head evaluation time, forward and forward+backward (brfgs.brdf.bench.bench_head)."""
-    import json
-    import os
-
     try:
         from brfgs.brdf.bench import bench_head, format_table
     except ImportError as exc:
@@ -96,13 +99,43 @@ def kernels_cmd(
     rows = bench_head(n_gaussians, d, repeats, threads or None)
     typer.echo(format_table(rows))
     if json_path is not None:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps({"loadavg_start": list(load), "rows": rows}, indent=1))
+        _write_json(json_path, {"loadavg_start": list(load), "rows": rows})
         typer.echo(f"wrote {json_path}")
 
 
-def register(app: typer.Typer) -> None:
-    from brfgs.cli.analysis import bench_analysis_cmd
+@bench_app.command("analysis")
+def bench_analysis_cmd(
+    model: Path = typer.Option(None, "--model", help="Run folder or model file (default: a synthetic model of "
+                               "a 128-px testsite run's size)."),
+    gaussians: int = typer.Option(50_000, "--gaussians", min=100, help="Gaussians of the synthetic model."),
+    size: int = typer.Option(128, "--size", min=8, help="Square size of the arbitrary view (pixels)."),
+    repeats: int = typer.Option(5, "--repeats", min=1, help="Timed renders (median reported)."),
+    polar_repeats: int = typer.Option(1, "--polar-repeats", min=1, help="Timed polar maps (median reported)."),
+    polar_azimuths: int = typer.Option(60, "--polar-azimuths", min=1, help="Azimuth sectors of the polar map."),
+    polar_zeniths: int = typer.Option(24, "--polar-zeniths", min=1, help="Zenith rings of the polar map."),
+    threads: int = typer.Option(0, "--threads", min=0, help="numba/torch threads (0: all cores)."),
+    json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
+) -> None:
+    """Time one 164-band arbitrary view and one 60x24 polar BRF map of one ROI in 4 bands (BENCHMARKS.md)."""
+    from brfgs.analysis.bench import bench_analysis
+    from brfgs.render import configure_threads
 
-    bench_app.command("analysis")(bench_analysis_cmd)
+    configure_threads(threads or None)
+    res = bench_analysis(model, n_gaussians=gaussians, size=size, repeats=repeats, polar_repeats=polar_repeats,
+                         polar_azimuths=polar_azimuths, polar_zeniths=polar_zeniths)
+    r, p, m = res["render"], res["polar_map"], res["machine"]
+    typer.echo(f"model: {res['model']} ({res['n_gaussians']} Gaussians, {res['bands']} bands, d={res['latent_dim']}); "
+               f"threads numba {m['numba_threads']}")
+    la = m["load_average_1_5_15_before"]
+    typer.echo(f"load average before: {la[0]:.1f} on {m['cpu_count']} cores (wall times include "
+               f"other processes' load; CPU seconds are this process's)")
+    typer.echo(f"arbitrary view {r['size'][0]}x{r['size'][1]}x{res['bands']}: median {r['median_s'] * 1000:.0f} ms wall, "
+               f"{r['median_cpu_s'] * 1000:.0f} ms CPU (of {r['repeats']})")
+    typer.echo(f"polar map {p['directions']} directions x {p['bands']} bands: {p['median_s']:.1f} s wall, "
+               f"{p['median_cpu_s']:.1f} s CPU ({p['per_direction_ms']:.1f} ms wall per direction)")
+    if json_path is not None:
+        _write_json(json_path, res)
+
+
+def register(app: typer.Typer) -> None:
     app.add_typer(bench_app, name="bench")

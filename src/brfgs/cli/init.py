@@ -10,6 +10,15 @@ import typer
 from brfgs.cli import _options as opt
 from brfgs.errors import UserError
 
+# The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no pycolmap;
+# pycolmap must never be imported before zlib, see brfgs.init).
+
+BANDS_HELP = "Explicit band indices 'i,j,k' or a bands.json from select-bands (overrides --strategy)."
+RECTIFY_HELP = ("SfM: detect features on nadir-rectified copies of oblique views (uses only the cameras' orientation "
+                "from transforms.json; beyond the paper).")
+REFINEMENT_HELP = ("SfM: retriangulate and finish with a global bundle adjustment with a Cauchy loss (beyond the "
+                   "paper).")
+
 
 def init_cmd(
     scene: Path = opt.SceneArg,
@@ -27,9 +36,7 @@ def init_cmd(
     min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
                                          help="EFC strategies: chosen bands at least this far apart in wavelength "
                                               "(beyond the paper; 0 = paper eq. 8)."),
-    bands: str = typer.Option(None, "--bands",
-                              help="Explicit band indices 'i,j,k' or a bands.json from select-bands "
-                                   "(overrides --strategy)."),
+    bands: str = typer.Option(None, "--bands", help=BANDS_HELP),
     max_features: int = typer.Option(8192, "--max-features", min=16, help="Features per view kept for matching."),
     min_inliers: int = typer.Option(15, "--min-inliers", min=5, help="Verified matches a view pair needs."),
     min_track: int = typer.Option(2, "--min-track", min=2, help="Drop sparse points seen in fewer views."),
@@ -38,12 +45,8 @@ def init_cmd(
     detect_upsample: int = typer.Option(0, "--detect-upsample", min=0,
                                         help="Detect features on a xN cubic-upsampled copy (0: 2 for SfM on images up "
                                              "to 256 px, else 1)."),
-    rectify: bool = typer.Option(True, "--rectify/--no-rectify",
-                                 help="SfM: detect features on nadir-rectified copies of oblique views (uses only the "
-                                      "cameras' orientation from transforms.json; beyond the paper)."),
-    robust_refinement: bool = typer.Option(True, "--robust-refinement/--no-robust-refinement",
-                                           help="SfM: retriangulate and finish with a global bundle adjustment "
-                                                "with a Cauchy loss (beyond the paper)."),
+    rectify: bool = typer.Option(True, "--rectify/--no-rectify", help=RECTIFY_HELP),
+    robust_refinement: bool = typer.Option(True, "--robust-refinement/--no-robust-refinement", help=REFINEMENT_HELP),
     threads: int = typer.Option(1, "--threads", min=1, help="COLMAP mapping threads (1 gives deterministic mapping)."),
     match_threads: int = typer.Option(1, "--match-threads", min=-1,
                                       help="COLMAP matching threads (1 gives deterministic matches; -1 = all: about "
@@ -57,10 +60,9 @@ def init_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
     """Select geometry bands, then SfM or known-pose triangulation; write cameras, sparse points and a report."""
-    from brfgs.bands import compute_band_stats, select_bands
-    from brfgs.init import InitConfig, initialize, strategy_ablation
+    from brfgs.init import InitConfig, initialize
     from brfgs.init import colmap as C
-    from brfgs.init.api import strategies_table, write_outputs
+    from brfgs.init.api import write_outputs
 
     if match_threads == 0:
         raise UserError("--match-threads must be >= 1 or -1 (all threads), got 0", field="match_threads")
@@ -70,30 +72,48 @@ def init_cmd(
     cfg = InitConfig(max_features=max_features, min_inliers=min_inliers, num_threads=threads, match_threads=match_threads, seed=seed,
                      keep_database=keep_database, min_track_length=min_track, max_point_error_px=max_point_error,
                      detect_upsample=detect_upsample, rectify=rectify, robust_refinement=robust_refinement)
-    rows = None
-    selection = None
     if bands is not None:
-        from brfgs.bands import BandSelection
-
-        idx = _parse_bands(bands, sc)
-        selection = BandSelection("given", idx, sc.wavelengths_nm, top=len(idx))
+        selection, rows = _given_bands(bands, sc), None
     else:
-        if strategy == "all-strategies":
-            stats = compute_band_stats(sc, progress=not quiet)
-            if not quiet:
-                typer.echo("Table 2 geometry columns, eight strategies:")
-            rows = strategy_ablation(sc, top=top, stats=stats, config=cfg, progress=not quiet)
-            selection = select_bands(sc, "efc-top3", stats=stats, min_separation_nm=min_separation)
-        else:
-            selection = select_bands(sc, strategy, top=top, progress=not quiet, min_separation_nm=min_separation)
-        idx = selection.selected
-    res = initialize(sc, idx, poses=poses, out_dir=None, config=cfg, selection=selection, progress=not quiet)
+        selection, rows = _select(sc, strategy, top, min_separation, cfg, quiet)
+    res = initialize(sc, selection.selected, poses=poses, out_dir=None, config=cfg, selection=selection,
+                     progress=not quiet)
     if rows is not None:
         res.report["strategies"] = rows
         res.report["strategies_definition"] = ("each row: features of that strategy's bands, COLMAP exhaustive "
                                                "matching and verification on the same views; see definitions")
     write_outputs(out, sc, res, selection)
-    r = res.report
+    _echo_report(res.report, rows)
+    typer.echo(f"\nwrote {out}/points.ply, cameras.json, init_report.json, init_report.md")
+
+
+def _given_bands(text: str, sc):
+    """The BandSelection of ``--bands`` (indices or a bands.json)."""
+    from brfgs.bands import BandSelection
+
+    idx = _parse_bands(text, sc)
+    return BandSelection("given", idx, sc.wavelengths_nm, top=len(idx))
+
+
+def _select(sc, strategy: str, top: int, min_separation: float, cfg, quiet: bool):
+    """(BandSelection, Table 2 rows or None) of ``--strategy`` (all-strategies: the eight strategies'
+    geometry columns, then efc-top3)."""
+    from brfgs.bands import compute_band_stats, select_bands
+    from brfgs.init import strategy_ablation
+
+    if strategy != "all-strategies":
+        return select_bands(sc, strategy, top=top, progress=not quiet, min_separation_nm=min_separation), None
+    stats = compute_band_stats(sc, progress=not quiet)
+    if not quiet:
+        typer.echo("Table 2 geometry columns, eight strategies:")
+    rows = strategy_ablation(sc, top=top, stats=stats, config=cfg, progress=not quiet)
+    return select_bands(sc, "efc-top3", stats=stats, min_separation_nm=min_separation), rows
+
+
+def _echo_report(r: dict, rows) -> None:
+    """Print the initialisation report's numbers (and the strategies table)."""
+    from brfgs.init.api import strategies_table
+
     g = r["geometry"]
     typer.echo(f"poses {r['poses']}: {r['registered_views']}/{r['views']} views registered, {r['points']} points, "
                f"mean track length {r['mean_track_length'] or 0:.2f}, reprojection error "
@@ -111,7 +131,6 @@ def init_cmd(
         typer.echo(msg)
     if rows is not None:
         typer.echo("\n" + strategies_table(rows))
-    typer.echo(f"\nwrote {out}/points.ply, cameras.json, init_report.json, init_report.md")
 
 
 def _parse_bands(text: str, sc) -> list[int]:

@@ -9,6 +9,8 @@ import typer
 
 from brfgs.cli import _options as opt
 
+# The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
+
 
 def inspect_cmd(
     scene: Path = opt.SceneArg,

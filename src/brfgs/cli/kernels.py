@@ -10,6 +10,8 @@ import typer
 
 from brfgs.errors import UserError
 
+# The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
+
 
 def kernels_cmd(
     sun_zenith: float = typer.Option(30.0, "--sun-zenith", help="Sun zenith angle in degrees, 0..89."),

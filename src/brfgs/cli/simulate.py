@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+# The command body imports the simulator lazily, so that `brfgs --help` stays fast (no mitsuba).
+
 
 def register(app: typer.Typer) -> None:
     @app.command("simulate")

@@ -1,0 +1,64 @@
+"""Output folders of the commands: never inside the scene, never over a finished result."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from brfgs.errors import UserError
+
+__all__ = ["check_output_dir", "prepare_output_dir", "run_folder", "safe_name", "Report"]
+
+
+def check_output_dir(out: Path, scene_root: Path | None = None, overwrite: bool = False,
+                     marker: str | None = None) -> None:
+    """Refuse an output folder inside the scene folder, or a non-empty one unless ``overwrite``.
+
+    ``marker``: a file whose presence means "a finished result is here" — only it blocks
+    (other outputs may be regenerated) when given.
+    """
+    if scene_root is not None:
+        try:
+            out.resolve().relative_to(scene_root.resolve())
+            raise UserError("output folder lies inside the scene folder; input data is never written to",
+                            file=out)
+        except ValueError:
+            pass
+    if out.exists() and not out.is_dir():
+        raise UserError("output path exists and is not a folder", file=out)
+    if overwrite or not out.exists():
+        return
+    if marker is not None:
+        if (out / marker).exists():
+            raise UserError(f"a finished result ({marker}) is already here; pass --overwrite to replace it",
+                            file=out)
+    elif any(out.iterdir()):
+        raise UserError("output folder exists and is not empty; pass --overwrite to replace it", file=out)
+
+
+def prepare_output_dir(out: Path, marker: str, overwrite: bool, scene_root: str | None) -> Path:
+    """:func:`check_output_dir` against the model's scene folder (when it still exists), then create ``out``."""
+    root = Path(scene_root) if scene_root and Path(scene_root).exists() else None
+    check_output_dir(out, root, overwrite=overwrite, marker=marker)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def run_folder(run: Path) -> Path:
+    """The run folder of ``run`` (a run folder or the model file in it)."""
+    run = Path(run)
+    return run if run.is_dir() else run.parent
+
+
+def safe_name(name: str) -> str:
+    """``name`` with every character other than letters, digits, '-', '_' and '.' replaced by '_'."""
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
+
+
+@dataclass
+class Report:
+    """What a report function wrote: the folder, the JSON summary it holds and a one-line message."""
+
+    out: Path
+    info: dict
+    message: str
