@@ -26,8 +26,10 @@ LAYERS = [
 # Same-layer imports that are allowed (importer, imported); everything else in a layer is separate.
 PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render")}
 # Dependencies that may be imported inside functions (heavy, optional or trap-prone), with a
-# "lazy:" comment saying why.
-LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "brfgs.sim")
+# "lazy:" comment saying why: pycolmap (via brfgs.init.colmap) must follow zlib; mitsuba/drjit (and
+# brfgs.sim's renderer) need DRJIT_LIBLLVM_PATH first; gsplat and lpips are optional; prosail
+# compiles numba code on import; matplotlib's backend is chosen before pyplot loads.
+LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "prosail", "matplotlib", "brfgs.sim", "brfgs.init")
 
 
 def layer_of(package: str) -> int:

@@ -19,6 +19,7 @@ relative to its dark noise (eq. 5), so its EFC stays low.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 EPS_SIGMA = 1e-6  # ε of eq. 5 (reflectance units)
@@ -58,8 +59,6 @@ def stretch_cube_to_uint8(cube: np.ndarray, valid: np.ndarray | None = None,
 
 def make_sift(max_features: int = 0, contrast_threshold: float = 0.04, edge_threshold: float = 10.0):
     """An OpenCV SIFT detector (Lowe's defaults, unbiased upscaling; ``max_features`` 0 = unlimited)."""
-    import cv2
-
     return cv2.SIFT_create(nfeatures=int(max_features), contrastThreshold=float(contrast_threshold),
                            edgeThreshold=float(edge_threshold), enable_precise_upscale=True)
 
@@ -76,8 +75,6 @@ def detect_keypoints(gray_u8: np.ndarray, valid: np.ndarray | None = None, sift=
     removes that bias (checked with Gaussian blobs at known sub-pixel positions in the tests).
     Keypoints inside invalid pixels are never returned (the detector gets an eroded mask).
     """
-    import cv2
-
     sift = make_sift() if sift is None else sift
     mask = None
     if valid is not None and not valid.all():

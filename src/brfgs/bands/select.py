@@ -27,8 +27,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from brfgs.bands import efc as E
+from brfgs.data.figures import pyplot
 from brfgs.errors import UserError
 
 STRATEGIES = ("efc", "efc-top1", "efc-top3", "all", "rgb", "cir", "central", "max-snr", "max-features")
@@ -157,8 +159,6 @@ def compute_band_stats(scene, views: list[int] | None = None, detect_max_px: int
     n_pix = 0
     it = views
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(views, desc="band statistics (views)", unit="view")
     for v, i in enumerate(it):
         cube = _block_mean(scene.load_image(i), factor)  # [H, W, B]
@@ -237,13 +237,7 @@ def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandSta
 
 def plot_band_stats(selection: BandSelection, path) -> None:
     """EFC, feature count and SNR against wavelength with the chosen bands marked (PNG/PDF by suffix)."""
-    import zlib  # noqa: F401  (before anything that may pull pycolmap; PNG writing needs a sane zlib)
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     st = selection.stats
     if st is None:
         raise ValueError("plot_band_stats needs a selection with statistics")

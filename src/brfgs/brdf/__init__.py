@@ -2,7 +2,8 @@
 
 Modules:
     kernels    Ross-Thick, Li-Sparse-R, Cook–Torrance (paper eqs 14–23), batched torch.
-    geometry   Gaussian normals (smallest-scale axis facing ω_o), view directions.
+    geometry   Gaussian normals (smallest-scale axis facing ω_o), view and sun directions
+               (quat_to_rotmat re-exported from brfgs.render.geometry).
     head       hybrid_latent (eq. 12), HeadConfig / init_head_params / evaluate_head.
     sh         real spherical harmonics (3DGS baseline) in latent space.
     fused      numba-fused CPU kernels + combination with hand-written gradients (the

@@ -20,17 +20,22 @@ Roughness: the parameter dict stores an unconstrained ``rho_raw`` [N];
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import torch
+from torch import Tensor
 
+from brfgs.brdf import fused
 from brfgs.brdf import kernels as K
 from brfgs.brdf.sh import SH_C0, eval_sh, num_sh_bases
+from brfgs.errors import UserError
 
 __all__ = [
     "COMPONENTS",
     "HEAD_KINDS",
     "HeadConfig",
+    "KernelConstants",
     "hybrid_kernels",
     "hybrid_latent",
     "roughness_from_raw",
@@ -48,39 +53,41 @@ def _check_components(components) -> tuple[str, ...]:
     comps = tuple(components)
     bad = [c for c in comps if c not in COMPONENTS]
     if bad or len(set(comps)) != len(comps):
-        from brfgs.errors import UserError
-
         raise UserError(
             f"components must be distinct names from {COMPONENTS}, got {comps}", field="components"
         )
     return comps
 
 
+@dataclass(frozen=True)
+class KernelConstants:
+    """Constants of the kernels: the horizon clamp of the zenith cosines (see
+    :mod:`brfgs.brdf.kernels`) and the Schlick F0 of the specular term (eq. 23)."""
+
+    min_cos: float = K.MIN_COS
+    f0: float = K.F0_DIELECTRIC
+
+
 def hybrid_kernels(
-    normals: torch.Tensor | None,
-    omega_i: torch.Tensor,
-    omega_o: torch.Tensor,
-    rho: torch.Tensor | None = None,
-    components=COMPONENTS,
-    normal_frame: bool = False,
+    normals: Tensor | None,  # [N, 3] unit (needed for "spec" or normal_frame), else None
+    omega_i: Tensor,  # [3] or [N, 3] unit, toward the sun
+    omega_o: Tensor,  # [N, 3] unit, Gaussian → camera
+    rho: Tensor | None = None,  # [N] roughness ρ in (0, 1] (needed for "spec")
+    components: Sequence[str] = COMPONENTS,  # subset of ("iso", "vol", "geo", "spec")
+    normal_frame: bool = False,  # Ross/Li with zenith angles from n_k
     *,
-    min_cos: float = K.MIN_COS,
-    f0: float = K.F0_DIELECTRIC,
-) -> dict[str, torch.Tensor]:
-    """Kernel values {"vol": K_Ross, "geo": K_Li, "spec": K_Cook} [N] for the enabled components.
+    min_cos: float = K.MIN_COS,  # horizon clamp of the cosines
+    f0: float = K.F0_DIELECTRIC,  # Schlick F0 (eq. 23)
+) -> dict[str, Tensor]:  # {"vol": [N], "geo": [N], "spec": [N]} for the enabled ones
+    """Kernel values K_Ross (eqs 14–15), K_Li (eqs 16–19), K_Cook (eqs 20–23) of the enabled
+    components, unitless (K_Cook in sr⁻¹).
 
     Shares the dot products of the three kernels (μ_i, μ_o, cos ξ). Normals are flipped
     to face ω_o here too, so any orientation of ``normals`` is accepted.
-
-    Args:
-        normals: [N, 3] unit normals (needed for "spec" or normal_frame), else may be None.
-        omega_i: [3] or [N, 3] unit vector toward the sun.
-        omega_o: [N, 3] unit vectors Gaussian → camera.
-        rho: [N] roughness ρ ∈ (0, 1] (needed for "spec").
     """
     comps = _check_components(components)
     need_ross, need_li, need_cook = "vol" in comps, "geo" in comps, "spec" in comps
-    out: dict[str, torch.Tensor] = {}
+    out: dict[str, Tensor] = {}
     if not (need_ross or need_li or need_cook):
         return out
     cxi = (omega_i * omega_o).sum(-1)  # [N]  cos ξ
@@ -113,52 +120,30 @@ def hybrid_kernels(
 
 
 def hybrid_latent(
-    z_iso: torch.Tensor | None,
-    z_vol: torch.Tensor | None,
-    z_geo: torch.Tensor | None,
-    z_spec: torch.Tensor | None,
-    rho: torch.Tensor | None,
-    normals: torch.Tensor | None,
-    omega_i: torch.Tensor,
-    omega_o: torch.Tensor,
-    components=COMPONENTS,
-    normal_frame: bool = False,
+    z_iso: Tensor | None,  # [N, d] latent coefficients (None when the component is off)
+    z_vol: Tensor | None,  # [N, d]
+    z_geo: Tensor | None,  # [N, d]
+    z_spec: Tensor | None,  # [N, d]
+    rho: Tensor | None,  # [N] roughness ρ in (0, 1] (GGX α; see roughness_from_raw)
+    normals: Tensor | None,  # [N, 3] unit (smallest-scale axis; flipped toward ω_o here as well)
+    omega_i: Tensor,  # [3] or [N, 3] unit, toward the sun (ENU)
+    omega_o: Tensor,  # [N, 3] unit, Gaussian → camera centre
+    components: Sequence[str] = COMPONENTS,  # subset of ("iso", "vol", "geo", "spec") (Table 3 ablations)
+    normal_frame: bool = False,  # Ross/Li with zenith angles from n_k (topography-coupled)
     *,
-    min_cos: float = K.MIN_COS,
-    f0: float = K.F0_DIELECTRIC,
-    backend: str = "auto",
-) -> torch.Tensor:
-    """Latent directional reflectance z_k(ω_i, ω_o) [N, d] of every Gaussian (paper eq. 12).
+    constants: KernelConstants = KernelConstants(),  # horizon clamp, Schlick F0
+    backend: str = "auto",  # "auto" | "torch" | "fused"
+) -> Tensor:  # [N, d]
+    """Latent directional reflectance z_k(ω_i, ω_o) of every Gaussian (paper eq. 12).
 
-    Args:
-        z_iso, z_vol, z_geo, z_spec: [N, d] latent coefficients (None allowed for a disabled
-            component).
-        rho: [N] roughness ρ ∈ (0, 1] (GGX α; use :func:`roughness_from_raw` on the raw parameter).
-        normals: [N, 3] unit normals (smallest-scale axis; flipped toward ω_o here as well).
-        omega_i: [3] or [N, 3] unit vector toward the sun (ENU).
-        omega_o: [N, 3] unit vectors from each Gaussian toward the camera centre.
-        components: subset of ("iso", "vol", "geo", "spec") to include (Table 3 ablations).
-        normal_frame: evaluate Ross/Li with zenith angles from n_k (topography-coupled).
-        min_cos: horizon clamp of the kernels (see brfgs.brdf.kernels).
-        f0: Schlick F0 of the specular term (0.04).
-        backend: "auto" (fused numba kernels on CPU tensors, torch otherwise), "torch"
-            (pure torch ops; use it for double backward or CUDA) or "fused".
-    Returns: [N, d].
+    ``backend``: "auto" (fused numba kernels on CPU tensors, torch otherwise), "torch" (pure
+    torch ops; use it for double backward or CUDA) or "fused".
     """
     comps = _check_components(components)
-    if not comps:
-        raise ValueError("hybrid head: at least one component is required")
     zs = {"iso": z_iso, "vol": z_vol, "geo": z_geo, "spec": z_spec}
-    for c in comps:
-        if zs[c] is None:
-            raise ValueError(f"hybrid head: z_{c} is required when component '{c}' is enabled")
-    if ("spec" in comps or normal_frame) and normals is None:
-        raise ValueError("hybrid head: normals are required for the specular term / normal_frame")
-    if "spec" in comps and rho is None:
-        raise ValueError("hybrid head: roughness rho is required for the specular term")
+    _check_latent_inputs(comps, zs, rho, normals, normal_frame)
+    min_cos, f0 = constants.min_cos, constants.f0
     if _use_fused(backend, omega_o, [zs[c] for c in comps]):
-        from brfgs.brdf import fused
-
         kk = fused.fused_kernels(
             normals, omega_i, omega_o, rho, "vol" in comps, "geo" in comps, "spec" in comps, normal_frame,
             min_cos, f0,
@@ -182,13 +167,24 @@ def hybrid_latent(
     return out
 
 
-def _use_fused(backend: str, omega_o: torch.Tensor, zs) -> bool:
+def _check_latent_inputs(comps: tuple[str, ...], zs: dict, rho, normals, normal_frame: bool) -> None:
+    """ValueError when an enabled component lacks its coefficients, normals or roughness."""
+    if not comps:
+        raise ValueError("hybrid head: at least one component is required")
+    for c in comps:
+        if zs[c] is None:
+            raise ValueError(f"hybrid head: z_{c} is required when component '{c}' is enabled")
+    if ("spec" in comps or normal_frame) and normals is None:
+        raise ValueError("hybrid head: normals are required for the specular term / normal_frame")
+    if "spec" in comps and rho is None:
+        raise ValueError("hybrid head: roughness rho is required for the specular term")
+
+
+def _use_fused(backend: str, omega_o: Tensor, zs) -> bool:
     if backend not in ("auto", "torch", "fused"):
         raise ValueError(f"backend must be 'auto', 'torch' or 'fused', got {backend!r}")
     if backend == "torch":
         return False
-    from brfgs.brdf import fused
-
     ok = (
         fused.available()
         and omega_o.device.type == "cpu"
@@ -203,12 +199,18 @@ def _use_fused(backend: str, omega_o: torch.Tensor, zs) -> bool:
 # ----------------------------------------------------------------------------------------
 # Roughness parametrisation
 # ----------------------------------------------------------------------------------------
-def roughness_from_raw(rho_raw: torch.Tensor, rho_min: float = 0.02) -> torch.Tensor:
-    """ρ = ρ_min + (1 − ρ_min)·sigmoid(rho_raw) ∈ (ρ_min, 1), [N]."""
+def roughness_from_raw(
+    rho_raw: Tensor,  # [N] unconstrained
+    rho_min: float = 0.02,  # lower bound of ρ
+) -> Tensor:  # [N] ρ in (ρ_min, 1)
+    """Roughness ρ_k of eq. 11 (the GGX α of eq. 22): ρ = ρ_min + (1 − ρ_min)·sigmoid(rho_raw)."""
     return rho_min + (1.0 - rho_min) * torch.sigmoid(rho_raw)
 
 
-def raw_from_roughness(rho, rho_min: float = 0.02) -> torch.Tensor:
+def raw_from_roughness(
+    rho: float | Tensor,  # float or [N] roughness ρ
+    rho_min: float = 0.02,  # lower bound of ρ
+) -> Tensor:  # like rho, unconstrained (default dtype)
     """Inverse of :func:`roughness_from_raw` (ρ clipped into (ρ_min, 1))."""
     rho = torch.as_tensor(rho, dtype=torch.get_default_dtype())
     p = ((rho - rho_min) / (1.0 - rho_min)).clamp(1e-6, 1 - 1e-6)
@@ -241,8 +243,6 @@ class HeadConfig:
     f0: float = K.F0_DIELECTRIC
 
     def __post_init__(self):
-        from brfgs.errors import UserError
-
         if self.kind not in HEAD_KINDS:
             raise UserError(f"head kind must be one of {HEAD_KINDS}, got {self.kind!r}", field="kind")
         object.__setattr__(self, "components", _check_components(self.components))
@@ -300,13 +300,13 @@ def head_param_shapes(config: HeadConfig, n: int, d: int) -> dict[str, tuple[int
 
 def init_head_params(
     config: HeadConfig,
-    n: int,
-    d: int,
+    n: int,  # number of Gaussians N
+    d: int,  # latent dimension
     *,
-    z_init: torch.Tensor | None = None,
+    z_init: Tensor | None = None,  # [N, d] initial view-independent latent, or None (zeros)
     dtype: torch.dtype = torch.float32,
-    device=None,
-) -> dict[str, torch.Tensor]:
+    device: torch.device | str | None = None,
+) -> dict[str, Tensor]:  # {name: [N, ...]}
     """Allocate and initialise the per-Gaussian head parameters (plain tensors, no grad).
 
     The view-independent part starts at ``z_init`` [N, d] (e.g. the encoded colours of the
@@ -339,12 +339,12 @@ def init_head_params(
 
 def evaluate_head(
     config: HeadConfig,
-    params: dict[str, torch.Tensor],
-    normals: torch.Tensor | None,
-    omega_i: torch.Tensor,
-    omega_o: torch.Tensor,
-) -> torch.Tensor:
-    """Latent reflectance [N, d] of every Gaussian for one view, for any head kind.
+    params: dict[str, Tensor],  # per-Gaussian parameters, leading dimension N
+    normals: Tensor | None,  # [N, 3] unit, or None when the head needs none
+    omega_i: Tensor,  # [3] or [N, 3] unit, toward the sun
+    omega_o: Tensor,  # [N, 3] unit, Gaussian → camera
+) -> Tensor:  # [N, d]
+    """Latent reflectance of every Gaussian for one view, for any head kind (hybrid: eq. 12).
 
     Args:
         config: the head description.
@@ -371,6 +371,5 @@ def evaluate_head(
         omega_o,
         config.components,
         config.normal_frame,
-        min_cos=config.min_cos,
-        f0=config.f0,
+        constants=KernelConstants(config.min_cos, config.f0),
     )

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from brfgs.brdf import kernels as K
+from brfgs.errors import UserError
 
 __all__ = ["KERNEL_NAMES", "canonical_kernel", "black_sky", "black_sky_many", "white_sky"]
 
@@ -62,8 +63,6 @@ def canonical_kernel(name: str) -> str:
     """Canonical kernel name for ``name`` (aliases: iso/vol/geo/spec, ross, li, cook, ...)."""
     key = str(name).strip().lower().replace("-", "_")
     if key not in _ALIASES:
-        from brfgs.errors import UserError
-
         raise UserError(f"unknown kernel {name!r}; expected one of {KERNEL_NAMES}", field="kernel")
     return _ALIASES[key]
 
@@ -85,8 +84,13 @@ def _kernel_values(name: str, ts, tv, phi, roughness: float | None) -> torch.Ten
     raise AssertionError(name)
 
 
-def black_sky_many(name: str, sun_zenith_rad, *, roughness: float | None = None) -> np.ndarray:
-    """Black-sky integrals h_k(θ_s) for an array of sun zeniths (rad, in [0, π/2)) → float64 array.
+def black_sky_many(
+    name: str,  # kernel (aliases accepted)
+    sun_zenith_rad: float | np.ndarray,  # float or [S] rad, in [0, π/2)
+    *,
+    roughness: float | None = None,  # ρ for "cook_torrance"
+) -> np.ndarray:  # [S] float64, unitless
+    """Black-sky integrals h_k(θ_s) for an array of sun zeniths.
 
     ``roughness`` is required for "cook_torrance" (horizontal facet, F0 = 0.04); it is
     ignored otherwise.
@@ -94,15 +98,11 @@ def black_sky_many(name: str, sun_zenith_rad, *, roughness: float | None = None)
     name = canonical_kernel(name)
     ts = np.atleast_1d(np.asarray(sun_zenith_rad, dtype=np.float64))
     if np.any(~np.isfinite(ts)) or np.any(ts < 0) or np.any(ts >= math.pi / 2):
-        from brfgs.errors import UserError
-
         raise UserError("sun zenith must be in [0, π/2) radians", field="sun_zenith_rad")
     if name == "isotropic":
         return np.ones_like(ts)
     if name == "cook_torrance":
         if roughness is None or not (0.0 < float(roughness) <= 1.0):
-            from brfgs.errors import UserError
-
             raise UserError("cook_torrance integrals need roughness in (0, 1]", field="roughness")
     mu, wmu = _gauss_legendre(_N_MU_VIEW, 0.0, 1.0)
     ph, wph = _gauss_legendre(_N_PHI, 0.0, math.pi)
@@ -123,7 +123,12 @@ def _black_sky_cached(name: str, sun_zenith_rad: float, roughness: float | None)
     return float(black_sky_many(name, sun_zenith_rad, roughness=roughness)[0])
 
 
-def black_sky(name: str, sun_zenith_rad: float, *, roughness: float | None = None) -> float:
+def black_sky(
+    name: str,  # kernel (aliases accepted)
+    sun_zenith_rad: float,  # rad, in [0, π/2)
+    *,
+    roughness: float | None = None,  # ρ for "cook_torrance" (horizontal facet)
+) -> float:  # unitless
     """Black-sky (directional-hemispherical) integral h_k(θ_s) of kernel ``name`` (cached).
 
     Args:
@@ -146,7 +151,11 @@ def _white_sky_cached(name: str, roughness: float | None) -> float:
     return float(2.0 * np.sum(w * mu_s * h))
 
 
-def white_sky(name: str, *, roughness: float | None = None) -> float:
+def white_sky(
+    name: str,  # kernel (aliases accepted)
+    *,
+    roughness: float | None = None,  # ρ for "cook_torrance"
+) -> float:  # unitless
     """White-sky (bihemispherical) integral H_k of kernel ``name`` (cached).
 
     Ross-Thick ≈ 0.189184 and Li-Sparse-R ≈ −1.377622 (Lucht et al. 2000); isotropic 1.
@@ -154,7 +163,5 @@ def white_sky(name: str, *, roughness: float | None = None) -> float:
     name = canonical_kernel(name)
     r = float(roughness) if (roughness is not None and name == "cook_torrance") else None
     if name == "cook_torrance" and r is None:
-        from brfgs.errors import UserError
-
         raise UserError("cook_torrance integrals need roughness in (0, 1]", field="roughness")
     return _white_sky_cached(name, r)

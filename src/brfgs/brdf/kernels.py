@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 
 import torch
+from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 __all__ = [
@@ -133,11 +134,11 @@ class _SafeSqrt(torch.autograd.Function):
         return torch.where(r > 0, grad * 0.5 / r.clamp_min(_TINY), torch.zeros_like(grad))
 
 
-def _safe_sqrt(x: torch.Tensor) -> torch.Tensor:
+def _safe_sqrt(x: Tensor) -> Tensor:
     return _SafeSqrt.apply(x)
 
 
-def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+def _dot(a: Tensor, b: Tensor) -> Tensor:
     """Dot product over the last axis (broadcasting), [...] ."""
     return (a * b).sum(-1)
 
@@ -145,15 +146,14 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 # ----------------------------------------------------------------------------------------
 # Cosine cores
 # ----------------------------------------------------------------------------------------
-def ross_thick_cos(mu_i: torch.Tensor, mu_o: torch.Tensor, cos_xi: torch.Tensor) -> torch.Tensor:
-    """Ross-Thick kernel from cosines (paper eq. 14–15, Lucht et al. 2000 eq. 38).
+def ross_thick_cos(
+    mu_i: Tensor,  # [...] cos of the sun zenith, already clamped to > 0
+    mu_o: Tensor,  # [...] cos of the view zenith, already clamped to > 0
+    cos_xi: Tensor,  # [...] cos of the phase angle ξ, ω_i·ω_o
+) -> Tensor:  # [...] (broadcast) K_Ross, unitless
+    """Ross-Thick kernel from cosines (paper eqs 14–15, Lucht et al. 2000 eq. 38).
 
     K = ((π/2 − ξ) cos ξ + sin ξ) / (cos θ_i + cos θ_o) − π/4.
-
-    Args:
-        mu_i, mu_o: cos of sun and view zenith (already clamped to > 0), [...].
-        cos_xi: cos of the phase angle ξ, ω_i·ω_o, [...].
-    Returns: K_Ross [...] (broadcast shape), unitless.
     """
     return _RossPhase.apply(cos_xi) / (mu_i + mu_o) - _PI_4
 
@@ -171,24 +171,16 @@ def _li_core(sec_i, sec_o, cos_xi_p, d2, x, hb: float):
 
 
 def li_sparse_r_vec_terms(
-    omega_i: torch.Tensor,
-    omega_o: torch.Tensor,
-    up: torch.Tensor | None,
-    mu_i: torch.Tensor,
-    mu_o: torch.Tensor,
-    cos_xi: torch.Tensor,
-    hb: float = LI_HB,
-    br: float = LI_BR,
-) -> torch.Tensor:
-    """Li-Sparse-R from direction vectors and their (clamped) cosines in the frame ``up``.
-
-    Args:
-        omega_i, omega_o: unit directions [..., 3] (broadcast).
-        up: frame normal [..., 3] or ``None`` for +z (scene vertical).
-        mu_i, mu_o: ω·up clamped to ≥ min_cos, [...].
-        cos_xi: ω_i·ω_o, [...].
-        hb, br: crown shape h/b and b/r (MODIS: 2, 1).
-    Returns: K_Li [...].
+    omega_i: Tensor,  # [..., 3] unit, toward the sun
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor (broadcasts with omega_i)
+    up: Tensor | None,  # [..., 3] unit frame normal, or None for +z (scene vertical)
+    mu_i: Tensor,  # [...] ω_i·up clamped to ≥ min_cos
+    mu_o: Tensor,  # [...] ω_o·up clamped to ≥ min_cos
+    cos_xi: Tensor,  # [...] ω_i·ω_o
+    hb: float = LI_HB,  # crown relative height h/b (MODIS: 2)
+    br: float = LI_BR,  # crown shape b/r (MODIS: 1)
+) -> Tensor:  # [...] K_Li, unitless
+    """Li-Sparse-R (paper eqs 16–19) from direction vectors and their clamped cosines in the frame ``up``.
 
     The in-plane vectors ``u = (ω − (ω·up) up) / μ`` have length tan θ and the azimuth
     of ω, so D² = |u_i − u_o|² (eq. 19) and tan θ_i tan θ_o sin φ = det[ω_i, ω_o, up]/(μ_i μ_o),
@@ -226,25 +218,18 @@ def li_sparse_r_vec_terms(
 
 
 def cook_torrance_cos(
-    mu_i: torch.Tensor,
-    mu_o: torch.Tensor,
-    cos_xi: torch.Tensor,
-    roughness: torch.Tensor | float,
-    f0: float = F0_DIELECTRIC,
-    min_cos: float = MIN_COS,
-) -> torch.Tensor:
+    mu_i: Tensor,  # [...] n·ω_i, NOT clamped (may be negative)
+    mu_o: Tensor,  # [...] n·ω_o, NOT clamped
+    cos_xi: Tensor,  # [...] ω_i·ω_o
+    roughness: Tensor | float,  # [...] or float: GGX α = ρ in (0, 1]
+    f0: float = F0_DIELECTRIC,  # Schlick normal-incidence reflectance (1 gives F ≡ 1)
+    min_cos: float = MIN_COS,  # cosines below this use the safe denominator / ramp
+) -> Tensor:  # [...] K_Cook ≥ 0, sr⁻¹
     """Cook–Torrance GGX specular kernel from unclamped cosines (paper eqs 20–23).
 
     With h = (ω_i + ω_o)/|ω_i + ω_o| (eq. 21): |ω_i + ω_o|² = 2 + 2 cos ξ,
     n·h = (μ_i + μ_o)/|ω_i + ω_o| and h·ω_o = sqrt((1 + cos ξ)/2), so no vector is built.
-
-    Args:
-        mu_i, mu_o: n·ω_i and n·ω_o (NOT clamped; may be negative), [...].
-        cos_xi: ω_i·ω_o, [...].
-        roughness: GGX α = ρ ∈ (0, 1], [...] or float.
-        f0: Schlick normal-incidence reflectance (0.04; 1 gives F ≡ 1).
-        min_cos: cosines below this use the safe denominator / ramp (module docstring).
-    Returns: K_Cook [...] ≥ 0 (sr⁻¹).
+    See the module docstring for the grazing-angle ramp.
     """
     hh = (2.0 + 2.0 * cos_xi).clamp_min(_TINY)  # |ω_i+ω_o|², [...]
     s = mu_i + mu_o
@@ -264,11 +249,13 @@ def cook_torrance_cos(
 # ----------------------------------------------------------------------------------------
 # Vector API
 # ----------------------------------------------------------------------------------------
-def frame_cosines(omega_i, omega_o, up=None, min_cos: float = MIN_COS):
-    """(μ_i, μ_o, cos ξ) for unit directions [..., 3] in frame ``up`` ([..., 3] or None=+z).
-
-    μ are clamped to ≥ ``min_cos`` (horizon); cos ξ = ω_i·ω_o. Shapes broadcast, [...].
-    """
+def frame_cosines(
+    omega_i: Tensor,  # [..., 3] unit, toward the sun
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor
+    up: Tensor | None = None,  # [..., 3] unit frame normal, or None for +z
+    min_cos: float = MIN_COS,  # horizon clamp of μ
+) -> tuple[Tensor, Tensor, Tensor]:  # μ_i [...], μ_o [...], cos ξ [...] (broadcast)
+    """Zenith cosines in the frame ``up`` (clamped to ≥ ``min_cos``) and cos ξ = ω_i·ω_o (eq. 15)."""
     if up is None:
         mu_i = omega_i[..., 2]
         mu_o = omega_o[..., 2]
@@ -278,35 +265,32 @@ def frame_cosines(omega_i, omega_o, up=None, min_cos: float = MIN_COS):
     return mu_i.clamp_min(min_cos), mu_o.clamp_min(min_cos), _dot(omega_i, omega_o)
 
 
-def ross_thick(omega_i, omega_o, up=None, *, min_cos: float = MIN_COS) -> torch.Tensor:
-    """Ross-Thick volumetric kernel K_Ross (paper eq. 14–15; Lucht et al. 2000 eq. 38).
-
-    Args:
-        omega_i: unit vector(s) toward the sun, [..., 3] (ENU).
-        omega_o: unit vector(s) toward the sensor, [..., 3]; broadcasts with omega_i.
-        up: frame normal [..., 3] (topography-coupled kernel) or None for the vertical +z.
-        min_cos: lower clamp of zenith cosines (default cos 89.5°).
-    Returns: K_Ross [...] (unitless; 0 for sun and view at nadir).
-    """
+def ross_thick(
+    omega_i: Tensor,  # [..., 3] unit, toward the sun (ENU)
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor; broadcasts with omega_i
+    up: Tensor | None = None,  # [..., 3] frame normal (topography-coupled kernel), or None for +z
+    *,
+    min_cos: float = MIN_COS,  # lower clamp of zenith cosines (cos 89.5°)
+) -> Tensor:  # [...] K_Ross, unitless (0 for sun and view at nadir)
+    """Ross-Thick volumetric kernel K_Ross (paper eqs 14–15; Lucht et al. 2000 eq. 38)."""
     mu_i, mu_o, cxi = frame_cosines(omega_i, omega_o, up, min_cos)
     return ross_thick_cos(mu_i, mu_o, cxi)
 
 
 def li_sparse_r(
-    omega_i, omega_o, up=None, *, hb: float = LI_HB, br: float = LI_BR, min_cos: float = MIN_COS
-) -> torch.Tensor:
+    omega_i: Tensor,  # [..., 3] unit, toward the sun
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor (broadcast)
+    up: Tensor | None = None,  # [..., 3] frame normal, or None for +z
+    *,
+    hb: float = LI_HB,  # crown relative height h/b
+    br: float = LI_BR,  # crown shape b/r
+    min_cos: float = MIN_COS,  # lower clamp of zenith cosines
+) -> Tensor:  # [...] K_Li, unitless (0 for sun and view at nadir, maximal at the hotspot)
     """Li-Sparse-Reciprocal geometric kernel K_Li (paper eqs 16–19; Lucht et al. 2000 eqs 39–44).
 
     MODIS crown shape h/b = 2, b/r = 1 by default; evaluated on primed angles
     θ' = atan((b/r) tan θ), cos t = (h/b)·sqrt(D² + (tanθ'_i tanθ'_v sinφ)²)/(secθ'_i + secθ'_v)
     clipped to [−1, 1].
-
-    Args:
-        omega_i, omega_o: unit directions toward sun / sensor, [..., 3] (broadcast).
-        up: frame normal [..., 3] or None for +z.
-        hb, br: h/b and b/r.
-        min_cos: lower clamp of zenith cosines.
-    Returns: K_Li [...] (unitless; 0 for sun and view at nadir, maximal at the hotspot).
     """
     omega_i, omega_o = torch.broadcast_tensors(omega_i, omega_o)
     mu_i, mu_o, cxi = frame_cosines(omega_i, omega_o, up, min_cos)
@@ -314,21 +298,19 @@ def li_sparse_r(
 
 
 def cook_torrance(
-    omega_i, omega_o, normal, roughness, *, f0: float = F0_DIELECTRIC, min_cos: float = MIN_COS
-) -> torch.Tensor:
+    omega_i: Tensor,  # [..., 3] unit, toward the sun
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor
+    normal: Tensor,  # [..., 3] unit facet normal n, NOT flipped here
+    roughness: Tensor | float,  # [...] or float: ρ (GGX α) in (0, 1]
+    *,
+    f0: float = F0_DIELECTRIC,  # Schlick F0 (pass 1.0 for F ≡ 1)
+    min_cos: float = MIN_COS,  # grazing threshold of the denominators
+) -> Tensor:  # [...] K_Cook ≥ 0, sr⁻¹
     """Cook–Torrance microfacet kernel K_Cook with GGX D and Schlick F (paper eqs 20–23).
 
-    K = D_GGX(n·h, ρ)·F(h·ω_o) / (4 (n·ω_o)(n·ω_i)), F = F0 + (1 − F0)(1 − h·ω_o)⁵.
-
-    Args:
-        omega_i, omega_o: unit directions toward sun / sensor, [..., 3].
-        normal: unit facet normal n [..., 3] (for Gaussians: smallest-scale axis, flipped
-            toward ω_o — see brfgs.brdf.geometry.gaussian_normals). Not flipped here: a
-            sun or sensor behind the facet gives 0.
-        roughness: ρ (GGX α) in (0, 1], [...] or float.
-        f0: Schlick F0 (0.04; pass 1.0 for F ≡ 1).
-        min_cos: grazing threshold of the denominators (module docstring).
-    Returns: K_Cook [...] ≥ 0 (sr⁻¹).
+    K = D_GGX(n·h, ρ)·F(h·ω_o) / (4 (n·ω_o)(n·ω_i)), F = F0 + (1 − F0)(1 − h·ω_o)⁵. For Gaussians
+    n is the smallest-scale axis flipped toward ω_o (brfgs.brdf.geometry.gaussian_normals); a sun
+    or sensor behind the facet gives 0.
     """
     mu_i = _dot(omega_i, normal)
     mu_o = _dot(omega_o, normal)
@@ -339,8 +321,12 @@ def cook_torrance(
 # ----------------------------------------------------------------------------------------
 # Angle API (sun at azimuth 0, view at relative azimuth φ)
 # ----------------------------------------------------------------------------------------
-def directions_from_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad):
-    """(ω_i, ω_o) unit vectors [..., 3] for sun zenith, view zenith, relative azimuth φ (rad).
+def directions_from_angles(
+    sun_zenith_rad: Tensor | float,  # [...] rad
+    view_zenith_rad: Tensor | float,  # [...] rad
+    rel_azimuth_rad: Tensor | float,  # [...] rad, φ = φ_view − φ_sun
+) -> tuple[Tensor, Tensor]:  # ω_i [..., 3], ω_o [..., 3] unit
+    """(ω_i, ω_o) for sun zenith, view zenith and relative azimuth φ.
 
     The sun is put at azimuth 0 and the view at azimuth φ (conventions.md: φ = φ_view − φ_sun,
     φ = 0 backscatter). Inputs are tensors or floats, broadcast together.
@@ -356,26 +342,42 @@ def directions_from_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad):
     return omega_i, omega_o
 
 
-def ross_thick_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad, *, min_cos: float = MIN_COS):
-    """K_Ross [...] for angles in radians (broadcast); see :func:`ross_thick`."""
+def ross_thick_angles(
+    sun_zenith_rad: Tensor | float,  # [...] rad
+    view_zenith_rad: Tensor | float,  # [...] rad
+    rel_azimuth_rad: Tensor | float,  # [...] rad
+    *,
+    min_cos: float = MIN_COS,
+) -> Tensor:  # [...] K_Ross
+    """K_Ross (eqs 14–15) for angles in radians (broadcast); see :func:`ross_thick`."""
     wi, wo = directions_from_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad)
     return ross_thick(wi, wo, min_cos=min_cos)
 
 
 def li_sparse_r_angles(
-    sun_zenith_rad, view_zenith_rad, rel_azimuth_rad, *, hb: float = LI_HB, br: float = LI_BR,
+    sun_zenith_rad: Tensor | float,  # [...] rad
+    view_zenith_rad: Tensor | float,  # [...] rad
+    rel_azimuth_rad: Tensor | float,  # [...] rad
+    *,
+    hb: float = LI_HB,
+    br: float = LI_BR,
     min_cos: float = MIN_COS,
-):
-    """K_Li [...] for angles in radians (broadcast); see :func:`li_sparse_r`."""
+) -> Tensor:  # [...] K_Li
+    """K_Li (eqs 16–19) for angles in radians (broadcast); see :func:`li_sparse_r`."""
     wi, wo = directions_from_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad)
     return li_sparse_r(wi, wo, hb=hb, br=br, min_cos=min_cos)
 
 
 def cook_torrance_angles(
-    sun_zenith_rad, view_zenith_rad, rel_azimuth_rad, roughness, *, f0: float = F0_DIELECTRIC,
+    sun_zenith_rad: Tensor | float,  # [...] rad
+    view_zenith_rad: Tensor | float,  # [...] rad
+    rel_azimuth_rad: Tensor | float,  # [...] rad
+    roughness: Tensor | float,  # [...] or float: GGX α in (0, 1]
+    *,
+    f0: float = F0_DIELECTRIC,
     min_cos: float = MIN_COS,
-):
-    """K_Cook [...] for a horizontal facet (n = +z) and angles in radians; see :func:`cook_torrance`."""
+) -> Tensor:  # [...] K_Cook, sr⁻¹
+    """K_Cook (eqs 20–23) for a horizontal facet (n = +z), angles in radians; see :func:`cook_torrance`."""
     wi, wo = directions_from_angles(sun_zenith_rad, view_zenith_rad, rel_azimuth_rad)
     n = torch.zeros_like(wi)
     n[..., 2] = 1.0

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from brfgs.brdf import kernels as K
+from brfgs.data.figures import pyplot
 
 __all__ = ["KernelGrid", "kernel_grid", "principal_plane", "write_kernel_csv", "plot_kernels", "CSV_COLUMNS"]
 
@@ -61,8 +62,13 @@ def kernel_grid(
     return KernelGrid(float(sun_zenith_deg), float(roughness), vz, az, kr, kl, kc)
 
 
-def principal_plane(sun_zenith_deg: float, roughness: float = 0.3, max_view_zenith_deg: float = 80.0, n: int = 641):
-    """(signed_view_zenith_deg [n], k_ross, k_li, k_cook) along the principal plane."""
+def principal_plane(
+    sun_zenith_deg: float,  # deg
+    roughness: float = 0.3,  # GGX α of K_Cook (horizontal facet)
+    max_view_zenith_deg: float = 80.0,  # deg
+    n: int = 641,  # samples
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # signed view zenith [n] deg, K_Ross, K_Li, K_Cook [n]
+    """The three kernels (eqs 14–23) along the principal plane (signed view zenith: + on the sun's side)."""
     signed = np.linspace(-max_view_zenith_deg, max_view_zenith_deg, n)
     phi = np.where(signed >= 0, 0.0, 180.0)
     kr, kl, kc = _eval(sun_zenith_deg, np.abs(signed), phi, roughness)
@@ -91,11 +97,7 @@ def write_kernel_csv(path: str | Path, grid: KernelGrid) -> None:
 
 def plot_kernels(path: str | Path, grid: KernelGrid, dpi: int = 120) -> None:
     """Save the 2×3 reference figure (principal plane on top, polar maps below) as PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     ts = grid.sun_zenith_deg
     vmax = float(grid.view_zenith_deg[-1])
     signed, pr, pl, pc = principal_plane(ts, grid.roughness, vmax)

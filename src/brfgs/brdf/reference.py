@@ -14,19 +14,30 @@ from __future__ import annotations
 import math
 
 import torch
+from torch import Tensor
 
 __all__ = ["ross_thick_ref", "li_sparse_r_ref", "cook_torrance_ref", "hybrid_latent_ref"]
 
 
-def ross_thick_ref(ti, tv, phi):
-    """Ross-Thick on angles (rad), Lucht et al. 2000 eq. 38."""
+def ross_thick_ref(
+    ti: Tensor,  # [...] sun zenith, rad
+    tv: Tensor,  # [...] view zenith, rad
+    phi: Tensor,  # [...] relative azimuth, rad
+) -> Tensor:  # [...] K_Ross
+    """Ross-Thick on angles (paper eqs 14–15; Lucht et al. 2000 eq. 38)."""
     cos_xi = torch.cos(ti) * torch.cos(tv) + torch.sin(ti) * torch.sin(tv) * torch.cos(phi)
     xi = torch.acos(cos_xi.clamp(-1, 1))
     return ((math.pi / 2 - xi) * torch.cos(xi) + torch.sin(xi)) / (torch.cos(ti) + torch.cos(tv)) - math.pi / 4
 
 
-def li_sparse_r_ref(ti, tv, phi, hb=2.0, br=1.0):
-    """Li-Sparse-Reciprocal on angles (rad), Lucht et al. 2000 eqs 39–44."""
+def li_sparse_r_ref(
+    ti: Tensor,  # [...] sun zenith, rad
+    tv: Tensor,  # [...] view zenith, rad
+    phi: Tensor,  # [...] relative azimuth, rad
+    hb: float = 2.0,  # crown relative height h/b
+    br: float = 1.0,  # crown shape b/r
+) -> Tensor:  # [...] K_Li
+    """Li-Sparse-Reciprocal on angles (paper eqs 16–19; Lucht et al. 2000 eqs 39–44)."""
     tip = torch.atan(br * torch.tan(ti))
     tvp = torch.atan(br * torch.tan(tv))
     cos_xip = torch.cos(tip) * torch.cos(tvp) + torch.sin(tip) * torch.sin(tvp) * torch.cos(phi)
@@ -40,7 +51,13 @@ def li_sparse_r_ref(ti, tv, phi, hb=2.0, br=1.0):
     return overlap - sec_sum + 0.5 * (1 + cos_xip) / (torch.cos(tip) * torch.cos(tvp))
 
 
-def cook_torrance_ref(omega_i, omega_o, n, rho, f0=0.04):
+def cook_torrance_ref(
+    omega_i: Tensor,  # [..., 3] unit, toward the sun
+    omega_o: Tensor,  # [..., 3] unit, toward the sensor
+    n: Tensor,  # [..., 3] unit normal
+    rho: Tensor | float,  # [...] roughness ρ
+    f0: float = 0.04,  # Schlick F0
+) -> Tensor:  # [...] K_Cook, sr⁻¹
     """Cook–Torrance GGX/Schlick with an explicit half vector (paper eqs 20–23)."""
     h = omega_i + omega_o
     h = h / torch.linalg.vector_norm(h, dim=-1, keepdim=True)
@@ -50,8 +67,17 @@ def cook_torrance_ref(omega_i, omega_o, n, rho, f0=0.04):
     return d * f / (4 * (n * omega_o).sum(-1) * (n * omega_i).sum(-1))
 
 
-def hybrid_latent_ref(z_iso, z_vol, z_geo, z_spec, rho, normals, omega_i, omega_o):
-    """Eq. 12 the naive way (vertical frame, all four components); [N, d]."""
+def hybrid_latent_ref(
+    z_iso: Tensor,  # [N, d]
+    z_vol: Tensor,  # [N, d]
+    z_geo: Tensor,  # [N, d]
+    z_spec: Tensor,  # [N, d]
+    rho: Tensor,  # [N] roughness ρ
+    normals: Tensor,  # [N, 3] unit, facing ω_o
+    omega_i: Tensor,  # [3] or [N, 3] unit, toward the sun
+    omega_o: Tensor,  # [N, 3] unit, toward the camera
+) -> Tensor:  # [N, d]
+    """Eq. 12 the naive way (vertical frame, all four components)."""
     omega_i = omega_i.expand_as(omega_o)
     ti = torch.acos(omega_i[:, 2])
     to = torch.acos(omega_o[:, 2])

@@ -8,6 +8,7 @@ the autoencoder, like the hybrid head's z terms.
 from __future__ import annotations
 
 import torch
+from torch import Tensor
 
 __all__ = ["SH_C0", "num_sh_bases", "sh_basis", "eval_sh"]
 
@@ -26,12 +27,15 @@ SH_C3 = (
 
 
 def num_sh_bases(degree: int) -> int:
-    """(degree + 1)² basis functions."""
+    """Number of basis functions of degree 0..``degree``: (degree + 1)²."""
     return (degree + 1) ** 2
 
 
-def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
-    """Real SH basis values [N, (degree+1)²] at unit directions dirs [N, 3] (degree 0–3)."""
+def sh_basis(
+    degree: int,  # 0..3
+    dirs: Tensor,  # [N, 3] unit directions
+) -> Tensor:  # [N, (degree + 1)²]
+    """Real SH basis values at ``dirs`` (3DGS/gsplat ordering and signs)."""
     if degree not in (0, 1, 2, 3):
         raise ValueError(f"SH degree must be 0..3, got {degree}")
     n = dirs.shape[0]
@@ -62,15 +66,12 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
     return torch.stack(cols, -1)  # [N, K]
 
 
-def eval_sh(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """Σ_k Y_k(dirs)·coeffs[:, k] → [N, d].
-
-    Args:
-        degree: 0..3.
-        coeffs: [N, (degree+1)², d] latent SH coefficients (index 0 = DC).
-        dirs: [N, 3] unit directions (the head passes ω_o, Gaussian → camera); ignored for degree 0.
-    Returns: [N, d].
-    """
+def eval_sh(
+    degree: int,  # 0..3
+    coeffs: Tensor,  # [N, ≥ (degree + 1)², d] latent SH coefficients (index 0 = DC)
+    dirs: Tensor,  # [N, 3] unit (the head passes ω_o, Gaussian → camera); ignored for degree 0
+) -> Tensor:  # [N, d]
+    """Σ_k Y_k(dirs)·coeffs[:, k], the SH baseline of Table 3 in latent space (no offset, no clamp)."""
     k = num_sh_bases(degree)
     if coeffs.shape[-2] < k:
         raise ValueError(f"eval_sh: need {k} coefficients for degree {degree}, got {coeffs.shape[-2]}")

@@ -12,16 +12,19 @@ the matching module) and keep the input's type.
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
 
 def _xp(x):
-    """Array module (numpy or torch) for ``x``."""
-    if type(x).__module__.startswith("torch"):
-        import torch
+    """Array module (numpy or torch) for ``x``.
 
-        return torch
+    A torch tensor means torch is loaded: it is taken from ``sys.modules``, so ``brfgs.data`` itself
+    never imports torch (reading scenes stays light).
+    """
+    if type(x).__module__.startswith("torch"):
+        return sys.modules["torch"]
     return np
 
 

@@ -7,6 +7,8 @@ on this composite, so the scale is a property of the data set, computed once.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 CIR_WAVELENGTHS_NM = (850.0, 650.0, 550.0)
@@ -36,8 +38,7 @@ def cir_scale(scene) -> np.ndarray:
 def cir_composite(cube, indices, scale):
     """CIR composite [H, W, 3] in [0, 1] of a cube [H, W, B] (numpy or torch); NaN stays NaN."""
     if type(cube).__module__.startswith("torch"):
-        import torch
-
+        torch = sys.modules["torch"]  # loaded, since cube is a tensor; brfgs.data never imports it
         rgb = cube[..., list(indices)] / torch.as_tensor(scale, dtype=cube.dtype, device=cube.device)
         return rgb.clamp(0.0, 1.0)
     rgb = np.asarray(cube)[..., list(indices)] / np.asarray(scale, dtype=np.float64)

@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from brfgs.data import validation as V
+from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
-from brfgs.data.cube_io import envi_image_path, read_envi_header
+from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.errors import UserError
 
 TRANSFORMS = "transforms.json"
 DEFAULT_VALUE_RANGE = (-0.5, 10.0)
 TEST_EVERY = 7  # 6 train : 1 test
-CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
 
 
 @dataclass
@@ -42,18 +42,6 @@ class Frame:
     view_azimuth_deg: float
     split: str                      # "train" | "test"
     split_given: bool = False       # True if transforms.json fixed it
-
-
-@dataclass
-class _CubeSource:
-    """How to read one cube: format and full-resolution shape."""
-
-    kind: str                       # "envi" | "npy" | "tiff"
-    path: Path
-    lines: int
-    samples: int
-    bands: int
-    band_axis_first: bool = False   # GeoTIFF stored as [B, H, W]
 
 
 @dataclass
@@ -76,7 +64,7 @@ class Scene:
     value_range: tuple[float, float] = DEFAULT_VALUE_RANGE
     split_seed: int = 0
     full_intrinsics: Intrinsics | None = None
-    _sources: list[_CubeSource] = field(default_factory=list, repr=False)
+    _sources: list[CubeSource] = field(default_factory=list, repr=False)
     _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
     invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
 
@@ -107,8 +95,6 @@ class Scene:
 
     def sun_direction(self) -> np.ndarray:
         """Unit vector [3] toward the sun (ENU)."""
-        from brfgs.data.angles import direction_from_angles_deg
-
         return direction_from_angles_deg(self.sun_zenith_deg, self.sun_azimuth_deg)
 
     def band_index_nearest(self, wavelength_nm: float) -> int:
@@ -152,7 +138,7 @@ class Scene:
         """
         src = self._sources[i]
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
-        cube = _read_block_averaged(src, file_bands, self.roi, self.downscale, self.value_range,
+        cube = read_block_averaged(src, file_bands, self.roi, self.downscale, self.value_range,
                                     self.frames[i].name)
         n_bad = int((~np.isfinite(cube)).any(-1).sum())
         if bands is None:
@@ -173,11 +159,11 @@ class Scene:
         if not hdr.is_file():
             return None
         full_wl = self._file_wavelengths
-        src = _open_cube(hdr, full_wl, self.root / TRANSFORMS, f"truth of {self.frames[i].name}")
+        src = open_cube(hdr, full_wl, self.root / TRANSFORMS, f"truth of {self.frames[i].name}")
         if (src.lines, src.samples) != (self._sources[i].lines, self._sources[i].samples):
             raise UserError(f"truth cube is {src.samples}x{src.lines}, the image "
                             f"{self._sources[i].samples}x{self._sources[i].lines}", file=hdr)
-        return _read_block_averaged(src, self.band_indices, self.roi, self.downscale, (-np.inf, np.inf),
+        return read_block_averaged(src, self.band_indices, self.roi, self.downscale, (-np.inf, np.inf),
                                     self.frames[i].name)
 
     def valid_mask(self, i: int, image: np.ndarray | None = None) -> np.ndarray:
@@ -200,122 +186,22 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         split_seed: seed of the deterministic 6:1 train/test split.
     """
     root = Path(path)
-    tf = root / TRANSFORMS
-    if not root.is_dir():
-        raise UserError("scene folder not found", file=root)
-    if not tf.is_file():
-        raise UserError(f"no {TRANSFORMS} in the scene folder", file=root)
-    try:
-        meta = json.loads(tf.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid JSON ({exc})", file=tf) from None
-    if not isinstance(meta, dict):
-        raise UserError("expected a JSON object at the top level", file=tf)
+    tf, meta = _load_transforms(root)
     if not isinstance(downscale, int) or downscale < 1:
         raise UserError(f"downscale must be an integer >= 1, got {downscale!r}", field="downscale")
     lo, hi = value_range
     if not lo < hi:
         raise UserError(f"value range must have min < max, got {value_range}", field="value_range")
-
-    def req(key):
-        if key not in meta:
-            raise UserError("required field missing", file=tf, field=key)
-        return meta[key]
-
-    model = meta.get("camera_model", "PINHOLE")
-    if model != "PINHOLE":
-        raise UserError(f"camera model {model!r} not supported, expected 'PINHOLE'", file=tf, field="camera_model")
-    w = V.number(req("w"), tf, "w", lo=1, integer=True)
-    h = V.number(req("h"), tf, "h", lo=1, integer=True)
-    fl_x = V.number(req("fl_x"), tf, "fl_x", lo=1e-9)
-    fl_y = V.number(req("fl_y"), tf, "fl_y", lo=1e-9)
-    cx = V.number(req("cx"), tf, "cx")
-    cy = V.number(req("cy"), tf, "cy")
-    if not 0 < cx < w:
-        raise UserError(f"principal point cx = {cx:g} lies outside the image width w = {w}", file=tf, field="cx")
-    if not 0 < cy < h:
-        raise UserError(f"principal point cy = {cy:g} lies outside the image height h = {h}", file=tf, field="cy")
-    full_intr = Intrinsics(fl_x, fl_y, cx, cy, w, h)
-
-    wl_all = V.wavelengths(req("wavelengths_nm"), tf, "wavelengths_nm")
-    n_bands_file = len(wl_all)
+    full_intr = _read_intrinsics(meta, tf)
+    wl_all = V.wavelengths(_required(meta, "wavelengths_nm", tf), tf, "wavelengths_nm")
     fwhm_all = None
     if meta.get("fwhm_nm") is not None:
-        fwhm_all = V.number_list(meta["fwhm_nm"], tf, "fwhm_nm", length=n_bands_file)
-    sun_zen = V.number(req("sun_zenith_deg"), tf, "sun_zenith_deg", lo=0.0, hi=89.999)
-    sun_az = V.number(req("sun_azimuth_deg"), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
-
-    if bands is None:
-        band_idx = np.arange(n_bands_file)
-    else:
-        band_idx = np.asarray(bands, dtype=int).reshape(-1)
-        if band_idx.size == 0 or band_idx.min() < 0 or band_idx.max() >= n_bands_file:
-            raise UserError(f"band indices must lie in 0..{n_bands_file - 1}", field="bands")
-        if np.any(np.diff(band_idx) <= 0):
-            raise UserError("band indices must be strictly increasing", field="bands")
-
-    if roi is not None:
-        x0, y0, rw, rh = (int(v) for v in roi)
-        if x0 < 0 or y0 < 0 or rw < 1 or rh < 1 or x0 + rw > w or y0 + rh > h:
-            raise UserError(f"region of interest {roi} does not fit the {w}x{h} image", field="roi")
-        intr = full_intr.cropped(x0, y0, rw, rh)
-        roi = (x0, y0, rw, rh)
-    else:
-        intr = full_intr
-    if intr.w // downscale < 1 or intr.h // downscale < 1:
-        raise UserError(f"downscale {downscale} leaves no pixels of a {intr.w}x{intr.h} image", field="downscale")
-    intr = intr.scaled(downscale)
-
-    frames_meta = req("frames")
-    if not isinstance(frames_meta, list):
-        raise UserError("expected a list of frames", file=tf, field="frames")
-    if len(frames_meta) < V.MIN_FRAMES:
-        raise UserError(f"found {len(frames_meta)} frames, at least {V.MIN_FRAMES} are needed for a "
-                        f"multi-angle reconstruction", file=tf, field="frames")
-
-    frames: list[Frame] = []
-    sources: list[_CubeSource] = []
-    names: set[str] = set()
-    for k, fm in enumerate(frames_meta):
-        fld = f"frames[{k}]"
-        if not isinstance(fm, dict):
-            raise UserError("expected an object", file=tf, field=fld)
-        if "file_path" not in fm:
-            raise UserError("required field missing", file=tf, field=f"{fld}.file_path")
-        cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path")
-        name = Path(fm["file_path"]).stem
-        if name in names:
-            raise UserError(f"duplicate frame name {name!r}", file=tf, field=f"{fld}.file_path")
-        names.add(name)
-        fld = f"frames[{k}] ('{name}')"
-        vz = va = None
-        if fm.get("view_zenith_deg") is not None:
-            vz = V.number(fm["view_zenith_deg"], tf, f"{fld}.view_zenith_deg", lo=0.0, hi=89.999)
-        if fm.get("view_azimuth_deg") is not None:
-            va = V.number(fm["view_azimuth_deg"], tf, f"{fld}.view_azimuth_deg", lo=-360.0, hi=360.0)
-        if fm.get("transform_matrix") is not None:
-            c2w = V.transform_matrix(fm["transform_matrix"], tf, f"{fld}.transform_matrix")
-        else:
-            if vz is None or va is None or fm.get("distance_m") is None:
-                raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
-                                "distance_m", file=tf, field=fld)
-            dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=1e-6)
-            c2w = pose_from_view_angles(vz, va, dist)
-        if vz is None or va is None:  # derive nominal angles from the camera centre
-            from brfgs.data.angles import angles_from_direction
-
-            zr, ar = angles_from_direction(c2w[:3, 3])
-            vz, va = float(np.degrees(zr)), float(np.degrees(ar))
-        split = fm.get("split")
-        if split is not None and split not in ("train", "test"):
-            raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
-        src = _open_cube(cube_path, wl_all, tf, name)
-        if (src.lines, src.samples) != (h, w):
-            raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
-                            f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
-        frames.append(Frame(name, cube_path, c2w, vz, va, split or "", split is not None))
-        sources.append(src)
-
+        fwhm_all = V.number_list(meta["fwhm_nm"], tf, "fwhm_nm", length=len(wl_all))
+    sun_zen = V.number(_required(meta, "sun_zenith_deg", tf), tf, "sun_zenith_deg", lo=0.0, hi=89.999)
+    sun_az = V.number(_required(meta, "sun_azimuth_deg", tf), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
+    band_idx = _band_subset(bands, len(wl_all))
+    intr, roi = _crop_and_scale(full_intr, roi, downscale)
+    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr)
     _assign_split(frames, split_seed)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
@@ -331,6 +217,134 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     return scene
 
 
+def _load_transforms(root: Path) -> tuple[Path, dict]:
+    """(path, parsed object) of the scene's transforms.json."""
+    tf = root / TRANSFORMS
+    if not root.is_dir():
+        raise UserError("scene folder not found", file=root)
+    if not tf.is_file():
+        raise UserError(f"no {TRANSFORMS} in the scene folder", file=root)
+    try:
+        meta = json.loads(tf.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"not valid JSON ({exc})", file=tf) from None
+    if not isinstance(meta, dict):
+        raise UserError("expected a JSON object at the top level", file=tf)
+    return tf, meta
+
+
+def _required(meta: dict, key: str, tf: Path):
+    """``meta[key]``; UserError naming the field when it is missing."""
+    if key not in meta:
+        raise UserError("required field missing", file=tf, field=key)
+    return meta[key]
+
+
+def _read_intrinsics(meta: dict, tf: Path) -> Intrinsics:
+    """Full-resolution pinhole intrinsics of transforms.json, checked."""
+    model = meta.get("camera_model", "PINHOLE")
+    if model != "PINHOLE":
+        raise UserError(f"camera model {model!r} not supported, expected 'PINHOLE'", file=tf, field="camera_model")
+    w = V.number(_required(meta, "w", tf), tf, "w", lo=1, integer=True)
+    h = V.number(_required(meta, "h", tf), tf, "h", lo=1, integer=True)
+    fl_x = V.number(_required(meta, "fl_x", tf), tf, "fl_x", lo=1e-9)
+    fl_y = V.number(_required(meta, "fl_y", tf), tf, "fl_y", lo=1e-9)
+    cx = V.number(_required(meta, "cx", tf), tf, "cx")
+    cy = V.number(_required(meta, "cy", tf), tf, "cy")
+    if not 0 < cx < w:
+        raise UserError(f"principal point cx = {cx:g} lies outside the image width w = {w}", file=tf, field="cx")
+    if not 0 < cy < h:
+        raise UserError(f"principal point cy = {cy:g} lies outside the image height h = {h}", file=tf, field="cy")
+    return Intrinsics(fl_x, fl_y, cx, cy, w, h)
+
+
+def _band_subset(bands, n_bands_file: int) -> np.ndarray:
+    """Indices [B] of the bands to keep (all when ``bands`` is None), checked."""
+    if bands is None:
+        return np.arange(n_bands_file)
+    band_idx = np.asarray(bands, dtype=int).reshape(-1)
+    if band_idx.size == 0 or band_idx.min() < 0 or band_idx.max() >= n_bands_file:
+        raise UserError(f"band indices must lie in 0..{n_bands_file - 1}", field="bands")
+    if np.any(np.diff(band_idx) <= 0):
+        raise UserError("band indices must be strictly increasing", field="bands")
+    return band_idx
+
+
+def _crop_and_scale(full_intr: Intrinsics, roi, downscale: int) -> tuple[Intrinsics, tuple | None]:
+    """Intrinsics of the loaded images (ROI, then downscale) and the checked ROI (x0, y0, w, h) or None."""
+    w, h = full_intr.w, full_intr.h
+    if roi is not None:
+        x0, y0, rw, rh = (int(v) for v in roi)
+        if x0 < 0 or y0 < 0 or rw < 1 or rh < 1 or x0 + rw > w or y0 + rh > h:
+            raise UserError(f"region of interest {roi} does not fit the {w}x{h} image", field="roi")
+        intr = full_intr.cropped(x0, y0, rw, rh)
+        roi = (x0, y0, rw, rh)
+    else:
+        intr = full_intr
+    if intr.w // downscale < 1 or intr.h // downscale < 1:
+        raise UserError(f"downscale {downscale} leaves no pixels of a {intr.w}x{intr.h} image", field="downscale")
+    return intr.scaled(downscale), roi
+
+
+def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray,
+                 full_intr: Intrinsics) -> tuple[list[Frame], list[CubeSource]]:
+    """Frames of transforms.json (poses, nominal angles, requested split) and how to read their cubes."""
+    if not isinstance(frames_meta, list):
+        raise UserError("expected a list of frames", file=tf, field="frames")
+    if len(frames_meta) < V.MIN_FRAMES:
+        raise UserError(f"found {len(frames_meta)} frames, at least {V.MIN_FRAMES} are needed for a "
+                        f"multi-angle reconstruction", file=tf, field="frames")
+    frames: list[Frame] = []
+    sources: list[CubeSource] = []
+    names: set[str] = set()
+    for k, fm in enumerate(frames_meta):
+        frame, src = _read_frame(root, tf, k, fm, names, wl_all, full_intr)
+        frames.append(frame)
+        sources.append(src)
+    return frames, sources
+
+
+def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.ndarray,
+                full_intr: Intrinsics) -> tuple[Frame, CubeSource]:
+    """Frame ``k`` of transforms.json and its cube source; adds its name to ``names``."""
+    fld = f"frames[{k}]"
+    if not isinstance(fm, dict):
+        raise UserError("expected an object", file=tf, field=fld)
+    if "file_path" not in fm:
+        raise UserError("required field missing", file=tf, field=f"{fld}.file_path")
+    cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path")
+    name = Path(fm["file_path"]).stem
+    if name in names:
+        raise UserError(f"duplicate frame name {name!r}", file=tf, field=f"{fld}.file_path")
+    names.add(name)
+    fld = f"frames[{k}] ('{name}')"
+    vz = va = None
+    if fm.get("view_zenith_deg") is not None:
+        vz = V.number(fm["view_zenith_deg"], tf, f"{fld}.view_zenith_deg", lo=0.0, hi=89.999)
+    if fm.get("view_azimuth_deg") is not None:
+        va = V.number(fm["view_azimuth_deg"], tf, f"{fld}.view_azimuth_deg", lo=-360.0, hi=360.0)
+    if fm.get("transform_matrix") is not None:
+        c2w = V.transform_matrix(fm["transform_matrix"], tf, f"{fld}.transform_matrix")
+    else:
+        if vz is None or va is None or fm.get("distance_m") is None:
+            raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
+                            "distance_m", file=tf, field=fld)
+        dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=1e-6)
+        c2w = pose_from_view_angles(vz, va, dist)
+    if vz is None or va is None:  # derive nominal angles from the camera centre
+        zr, ar = angles_from_direction(c2w[:3, 3])
+        vz, va = float(np.degrees(zr)), float(np.degrees(ar))
+    split = fm.get("split")
+    if split is not None and split not in ("train", "test"):
+        raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
+    src = open_cube(cube_path, wl_all, tf, name)
+    w, h = full_intr.w, full_intr.h
+    if (src.lines, src.samples) != (h, w):
+        raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
+                        f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
+    return Frame(name, cube_path, c2w, vz, va, split or "", split is not None), src
+
+
 def _assign_split(frames: list[Frame], seed: int) -> None:
     """Deterministic 6:1 split; frames with a given split keep it."""
     n = len(frames)
@@ -343,113 +357,7 @@ def _assign_split(frames: list[Frame], seed: int) -> None:
         frames[free[j]].split = "test" if rank < n_test_free else "train"
 
 
-def _open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str) -> _CubeSource:
-    """Header-level checks of one cube; returns how to read it."""
-    n_bands = len(wl)
-    suffix = path.suffix.lower()
-    if suffix == ".hdr":
-        if not path.is_file():
-            raise UserError(f"frame '{frame}': cube header not found", file=path)
-        hdr = read_envi_header(path)
-        img = envi_image_path(path)
-        if img is None:
-            raise UserError(f"frame '{frame}': ENVI data file (.img) next to the header not found", file=path)
-        for key in ("lines", "samples", "bands", "data type", "interleave"):
-            if key not in hdr:
-                raise UserError(f"frame '{frame}': required header field missing", file=path, field=key)
-        V.header_matches(hdr, wl, path, tf, n_bands)
-        lines, samples = int(hdr["lines"]), int(hdr["samples"])
-        try:
-            import spectral.io.envi as envi
-
-            obj = envi.open(str(path), str(img))
-        except Exception as exc:
-            raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
-        expected = lines * samples * n_bands * obj.sample_size + int(hdr.get("header offset", 0))
-        if img.stat().st_size < expected:
-            raise UserError(f"frame '{frame}': data file is {img.stat().st_size} bytes, the header needs "
-                            f"{expected}", file=img)
-        return _CubeSource("envi", path, lines, samples, n_bands)
-    if not path.is_file():
-        raise UserError(f"frame '{frame}': cube file not found", file=path)
-    if suffix == ".npy":
-        try:
-            arr = np.load(path, mmap_mode="r")
-        except Exception as exc:
-            raise UserError(f"frame '{frame}': unreadable .npy cube ({exc})", file=path) from None
-        if arr.ndim != 3 or arr.shape[2] != n_bands:
-            raise UserError(f"frame '{frame}': expected an array [H, W, {n_bands}], found shape {arr.shape}",
-                            file=path, field="shape")
-        return _CubeSource("npy", path, arr.shape[0], arr.shape[1], n_bands)
-    if suffix in (".tif", ".tiff"):
-        import tifffile
-
-        try:
-            with tifffile.TiffFile(path) as t:
-                shape = t.series[0].shape
-        except Exception as exc:
-            raise UserError(f"frame '{frame}': unreadable GeoTIFF ({exc})", file=path) from None
-        if len(shape) == 3 and shape[0] == n_bands and shape[2] != n_bands:
-            return _CubeSource("tiff", path, shape[1], shape[2], n_bands, band_axis_first=True)
-        if len(shape) == 3 and shape[2] == n_bands:
-            return _CubeSource("tiff", path, shape[0], shape[1], n_bands)
-        raise UserError(f"frame '{frame}': expected {n_bands} bands, found shape {shape}", file=path, field="shape")
-    raise UserError(f"frame '{frame}': unsupported cube format {suffix!r} (expected .hdr, .npy, .tif)",
-                    file=tf, field="file_path")
-
-
-def _raw_array(src: _CubeSource):
-    """A lazily indexable [lines, samples, bands] view of the cube (memory map where possible)."""
-    if src.kind == "envi":
-        import spectral.io.envi as envi
-
-        return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
-    if src.kind == "npy":
-        return np.load(src.path, mmap_mode="r")
-    import tifffile
-
-    try:
-        arr = tifffile.memmap(src.path, mode="r")
-    except Exception:  # compressed or tiled TIFF: read whole (small files in practice)
-        arr = tifffile.imread(src.path)
-    return np.moveaxis(arr, 0, -1) if src.band_axis_first else arr
-
-
-def _read_block_averaged(src: _CubeSource, file_bands: np.ndarray, roi, factor: int,
-                         value_range: tuple[float, float], frame: str) -> np.ndarray:
-    """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
-
-    The memory map is reopened for each block and dropped after it, so the pages it touched
-    leave the process's resident set: peak memory is one block, not the cube.
-    """
-    x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
-    out_h, out_w = rh // factor, rw // factor
-    nb = len(file_bands)
-    out = np.empty((out_h, out_w, nb), dtype=np.float32)
-    row_bytes = src.samples * src.bands * 4 * factor
-    rows_per_block = max(1, CHUNK_BYTES // max(1, row_bytes))
-    contiguous = nb == src.bands and np.array_equal(file_bands, np.arange(src.bands))
-    try:
-        for r0 in range(0, out_h, rows_per_block):
-            r1 = min(out_h, r0 + rows_per_block)
-            raw = _raw_array(src)
-            rows = slice(y0 + r0 * factor, y0 + r1 * factor)
-            cols = slice(x0, x0 + out_w * factor)
-            block = raw[rows, cols] if contiguous else raw[rows, cols][:, :, file_bands]
-            block = np.asarray(block, dtype=np.float32)
-            del raw
-            V.pixel_range(block, value_range, src.path, frame)
-            if factor > 1:
-                block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
-            out[r0:r1] = block
-    except UserError:
-        raise
-    except (OSError, ValueError) as exc:
-        raise UserError(f"frame '{frame}': could not read cube data ({exc})", file=src.path) from None
-    return out
-
-
-def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[_CubeSource],
+def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[CubeSource],
                 value_range) -> tuple[np.ndarray, str]:
     """σ_b [B]: std over dark frames and pixels; else ``dark_sigma``; else estimated from the images."""
     n_bands = len(wl)
@@ -465,8 +373,8 @@ def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[
         s2 = np.zeros(n_bands)
         n = 0
         for p in paths:
-            src = _open_cube(p, wl, tf, f"dark frame {p.name}")
-            cube = _read_block_averaged(src, np.arange(n_bands), None, 1, (-np.inf, np.inf), p.name)
+            src = open_cube(p, wl, tf, f"dark frame {p.name}")
+            cube = read_block_averaged(src, np.arange(n_bands), None, 1, (-np.inf, np.inf), p.name)
             cube = cube.reshape(-1, n_bands).astype(np.float64)
             cube = cube[np.isfinite(cube).all(1)]
             s1 += cube.sum(0)
@@ -484,11 +392,11 @@ def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[
     return _estimate_sigma(sources[: min(3, len(sources))], n_bands, value_range), "estimated"
 
 
-def _estimate_sigma(sources: list[_CubeSource], n_bands: int, value_range) -> np.ndarray:
+def _estimate_sigma(sources: list[CubeSource], n_bands: int, value_range) -> np.ndarray:
     """Per-band noise σ from images (no dark frames): robust MAD of a 3×3 Laplacian residual (Immerkær 1996)."""
     ests = []
     for src in sources:
-        cube = _read_block_averaged(src, np.arange(n_bands), None, 1, value_range, src.path.stem)
+        cube = read_block_averaged(src, np.arange(n_bands), None, 1, value_range, src.path.stem)
         lap = (4 * cube[1:-1, 1:-1] - cube[:-2, 1:-1] - cube[2:, 1:-1] - cube[1:-1, :-2] - cube[1:-1, 2:])
         lap = lap.reshape(-1, n_bands)
         lap = lap[np.isfinite(lap).all(1)]

@@ -10,8 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from brfgs.data.angles import direction_from_angles_deg
+from brfgs.data.figures import pyplot
 from brfgs.data.scene import Scene
 
 
@@ -45,8 +47,6 @@ class SceneSummary:
 
 def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
     """Summary of ``scene``; reads every frame once."""
-    from tqdm import tqdm
-
     B = scene.n_bands
     s1 = np.zeros(B)
     n = 0
@@ -113,11 +113,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
 
 def plot_views(scene: Scene, path) -> None:
     """Polar plot of the view directions (zenith as radius, azimuth clockwise from north), sun marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig = plt.figure(figsize=(6.5, 5.5))
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")

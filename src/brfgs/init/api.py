@@ -30,13 +30,21 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
-from brfgs.bands.select import detect_downscale_factor
+from brfgs.bands.efc import make_sift
+from brfgs.bands.select import (STRATEGY_LABELS, TABLE2_STRATEGIES, _block_mean, compute_band_stats,
+                                detect_downscale_factor, select_bands)
 from brfgs.data.cameras import project_points
 from brfgs.errors import UserError
+from brfgs.init.align import umeyama_robust
 from brfgs.init.features import (DEFAULT_MAX_FEATURES, SFM_CONTRAST_THRESHOLD, ViewFeatures,
                                  extract_view_features, nadir_rectification)
+from brfgs.init.outputs import (DEFINITIONS, fmt_or_na, report_markdown,  # noqa: F401  (re-exported)
+                                strategies_table, write_outputs, write_points_ply)
+from brfgs.init.truth import truth_checks
 
 POSE_MODES = ("known", "sfm", "auto")
 
@@ -117,20 +125,13 @@ def extract_features(scene, band_indices, config: InitConfig, progress: bool = F
     cubes = [] if keep_cubes else None
     it = range(len(scene.frames))
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(it, desc="features", unit="view")
-    from brfgs.bands.efc import make_sift
-    from brfgs.bands.select import _block_mean
-
     sift = make_sift(contrast_threshold=config.contrast_threshold)
     for i in it:
         cube = scene.load_image(i, bands=band_indices)  # [H, W, k]
         small = _block_mean(cube, factor)
         up = _upsample(scene, config, mode)
         if up > 1:  # pixel-centre aligned cubic upsampling
-            import cv2
-
             small = np.stack([cv2.resize(small[:, :, j], None, fx=up, fy=up, interpolation=cv2.INTER_CUBIC)
                               for j in range(small.shape[-1])], -1)
         scale = factor / up
@@ -214,28 +215,9 @@ def geometry_metrics(feats: list[ViewFeatures], stats) -> dict:
     }
 
 
-DEFINITIONS = {
-    "mean_detected_features_per_view": "SIFT keypoints per view on the 8-bit stretched selected bands, pooled "
-                                       "over bands with duplicates (< 1.5 px from a stronger keypoint with a "
-                                       "descriptor less than 0.5 rad away) removed, before the max_features cap",
-    "putative_matches": "COLMAP exhaustive SIFT matches over all view pairs (ratio test 0.8, max distance 0.7, "
-                        "cross check)",
-    "verified_matches": "inlier matches of the two-view geometries accepted by COLMAP's RANSAC verification "
-                        "(essential/fundamental/homography, 4 px, >= min_inliers)",
-    "matching_success_rate": "verified_matches / putative_matches",
-    "mean_track_length": "mean number of views observing a sparse point",
-    "mean_reprojection_error_px": "mean over observations of the pixel distance to the projected point "
-                                  "with the final cameras",
-    "rectify": "SfM with settings.rectify: features of views tilted more than 10 deg from nadir are detected on a "
-               "copy rotated virtually to nadir (pure-rotation homography from the transforms.json orientation) "
-               "and mapped back to the image; the geometry columns of this report then count those features. "
-               "The Table 2 strategy rows always use plain SIFT on the images, as in the paper",
-}
-
-
 def match_features(scene, feats, work_dir: Path, config: InitConfig, guided: bool = False):
     """Write the COLMAP database and match; returns (db_path, image_ids, MatchStats)."""
-    from brfgs.init import colmap as C
+    from brfgs.init import colmap as C  # lazy: pulls in pycolmap (must follow zlib, see init/__init__.py)
 
     work_dir.mkdir(parents=True, exist_ok=True)
     db_path = work_dir / "database.db"
@@ -261,6 +243,24 @@ def _sfm_failure(scene, stats, registered_names: list[str], reason: str) -> User
         file=Path(scene.root) / "transforms.json", field="frames")
 
 
+@dataclass
+class _Reconstruction:
+    """Cameras and sparse points as :func:`initialize` builds them up."""
+
+    mode: str                               # "sfm" or "known" (after a fallback)
+    arr: object                             # colmap.ReconArrays: points, cameras, observations
+    known_c2w: np.ndarray                   # [F, 4, 4] poses of transforms.json
+    alignment: dict | None = None           # SfM → ENU similarity
+    fallback: str | None = None             # why SfM failed, when "auto" fell back to known poses
+    guided_stats: object = None             # MatchStats of guided matching (SfM)
+    c2w: np.ndarray | None = None           # [F, 4, 4] final cameras (OpenGL)
+    registered: np.ndarray | None = None    # [F] bool
+    points: np.ndarray | None = None        # [P, 3] after filtering
+    point_err: np.ndarray | None = None     # [P] mean reprojection error (px)
+    rep_err: np.ndarray | None = None       # [O] reprojection error of each kept observation (px)
+    n_before: int = 0                       # points before filtering
+
+
 def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | None = None,
                config: InitConfig | None = None, selection=None, progress: bool = False) -> InitResult:
     """Cameras and sparse points from the bands ``band_indices`` of ``scene`` (see module docstring).
@@ -272,11 +272,8 @@ def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | N
     if poses not in POSE_MODES:
         raise UserError(f"--poses must be one of {', '.join(POSE_MODES)}, got {poses!r}", field="poses")
     bands = _check_bands(scene, band_indices)
-    n_frames = len(scene.frames)
     t0 = time.perf_counter()
     timings = {}
-    names = [f.name for f in scene.frames]
-
     mode = poses
     if poses == "auto":
         mode = "known" if _frames_have_poses(scene) else "sfm"
@@ -295,90 +292,16 @@ def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | N
         db_path, _ids, stats = match_features(scene, feats, work, config)
         timings["matching"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        from brfgs.init import colmap as C
-
-        known_c2w = np.stack([np.asarray(f.c2w, float) for f in scene.frames])  # [F, 4, 4]
-        alignment = None
-        fallback = None
-        guided_stats = None
-        if mode == "sfm":
-            try:
-                sfm_db, sfm_stats = db_path, stats
-                if config.guided_matching:  # Table 2 metrics stay those of plain matching (above)
-                    sfm_db, _, guided_stats = match_features(scene, feats, work / "guided", config, guided=True)
-                    sfm_stats = guided_stats
-                rec, arr, alignment = _run_sfm(scene, sfm_db, work / "guided" if config.guided_matching else work,
-                                               sfm_stats, config, names, known_c2w)
-            except UserError as exc:
-                if poses != "auto":
-                    raise
-                fallback = str(exc)
-                mode = "known"
-        if mode == "known":
-            rec = C.triangulate_known(db_path, work, names, known_c2w, seed=config.seed,
-                                      num_threads=config.num_threads, min_inliers=config.min_inliers)
-            arr = C.reconstruction_arrays(rec, names)
-            if len(arr.points) == 0:
-                raise UserError(
-                    f"triangulation with the known poses produced no points ({stats.verified_total} verified "
-                    f"matches over {stats.pairs_verified} view pairs); check the poses in transforms.json and the "
-                    f"selected bands", file=Path(scene.root) / "transforms.json", field="frames")
+        rec = _reconstruct(scene, feats, db_path, work, stats, config, poses, mode)
         timings["reconstruction"] = time.perf_counter() - t1
-        registered = np.array([c is not None for c in arr.c2w])
-        c2w = np.stack([arr.c2w[i] if registered[i] else known_c2w[i] for i in range(n_frames)])
-        points = arr.points
-        if mode == "known":  # poses must be untouched by the triangulator
-            drift = max(float(np.abs(arr.c2w[i] - known_c2w[i]).max()) for i in range(n_frames) if registered[i])
-            if drift > 1e-6:
-                raise RuntimeError(f"COLMAP's triangulator changed the known poses (by {drift:g})")
-        rep_err = reprojection_errors(points, c2w, scene.intrinsics, arr.obs_frame, arr.obs_point, arr.obs_xy)
-        point_err = np.zeros(len(points))
-        if len(points):
-            np.add.at(point_err, arr.obs_point, rep_err)
-            point_err /= np.maximum(arr.track_len, 1)
-        # keep well-constrained points: enough views and a small mean reprojection error
-        keep = (arr.track_len >= config.min_track_length) & (point_err <= config.max_point_error_px)
-        n_before = len(points)
-        if not keep.all():
-            new_id = np.cumsum(keep) - 1
-            ok_obs = keep[arr.obs_point]
-            arr.obs_frame, arr.obs_xy = arr.obs_frame[ok_obs], arr.obs_xy[ok_obs]
-            arr.obs_point = new_id[arr.obs_point[ok_obs]]
-            rep_err = rep_err[ok_obs]
-            points, point_err, arr.track_len = points[keep], point_err[keep], arr.track_len[keep]
-        if len(points) == 0:
-            raise UserError(f"no sparse point has a track of >= {config.min_track_length} views and a mean "
-                            f"reprojection error <= {config.max_point_error_px} px ({n_before} before filtering)",
-                            field="poses")
-        colors = point_colors(scene, bands, cubes, arr.obs_frame, arr.obs_point, arr.obs_xy, len(points))
-        from brfgs.init.truth import truth_checks
-
-        report = {
-            "scene": str(scene.root),
-            "poses": mode,
-            "poses_requested": poses,
-            "fallback": fallback,
-            "bands": {"indices": bands, "wavelengths_nm": [float(scene.wavelengths_nm[i]) for i in bands],
-                      "strategy": getattr(selection, "strategy", None)},
-            "views": n_frames,
-            "registered_views": int(registered.sum()),
-            "unregistered_views": [names[i] for i in range(n_frames) if not registered[i]],
-            "points": int(len(points)),
-            "points_removed_by_filter": int(n_before - len(points)),
-            "mean_track_length": float(arr.track_len.mean()) if len(points) else None,
-            "mean_reprojection_error_px": float(rep_err.mean()) if len(rep_err) else None,
-            "geometry": geometry_metrics(feats, stats),
-            "guided_verified_matches": None if guided_stats is None else int(guided_stats.verified_total),
-            "alignment": alignment,
-            "truth": truth_checks(scene, [c2w[i] if registered[i] else None for i in range(n_frames)], points),
-            "image_size": [int(scene.width), int(scene.height)],
-            "detect_downscale": int(factor),
-            "detect_upsample": _upsample(scene, config, "sfm" if mode == "sfm" or fallback else "known"),
-            "settings": asdict(config),
-            "timings_s": {k: round(v, 3) for k, v in timings.items()},
-            "definitions": DEFINITIONS,
-        }
-        result = InitResult(points, colors, c2w, registered, arr.track_len, point_err, bands, report)
+        _final_cameras(rec)
+        _filter_points(rec, scene.intrinsics, config)
+        arr = rec.arr
+        colors = point_colors(scene, bands, cubes, arr.obs_frame, arr.obs_point, arr.obs_xy, len(rec.points))
+        report = _report(scene, config, poses, bands, rec, geometry_metrics(feats, stats), factor, timings,
+                         selection)
+        result = InitResult(rec.points, colors, rec.c2w, rec.registered, arr.track_len, rec.point_err, bands,
+                            report)
         if out_dir is not None:
             write_outputs(Path(out_dir), scene, result, selection)
         return result
@@ -389,14 +312,118 @@ def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | N
             shutil.rmtree(Path(out_dir) / "colmap", ignore_errors=True)
 
 
+def _reconstruct(scene, feats, db_path: Path, work: Path, stats, config: InitConfig, poses: str,
+                 mode: str) -> _Reconstruction:
+    """SfM (``mode`` "sfm"; with ``poses`` "auto" a failure falls back to the known poses) or
+    triangulation of the verified matches with the poses of transforms.json."""
+    from brfgs.init import colmap as C  # lazy: pulls in pycolmap (must follow zlib, see init/__init__.py)
+
+    names = [f.name for f in scene.frames]
+    known_c2w = np.stack([np.asarray(f.c2w, float) for f in scene.frames])  # [F, 4, 4]
+    rec = _Reconstruction(mode, None, known_c2w)
+    if mode == "sfm":
+        try:
+            sfm_db, sfm_stats = db_path, stats
+            if config.guided_matching:  # Table 2 metrics stay those of plain matching (above)
+                sfm_db, _, rec.guided_stats = match_features(scene, feats, work / "guided", config, guided=True)
+                sfm_stats = rec.guided_stats
+            _, rec.arr, rec.alignment = _run_sfm(scene, sfm_db, work / "guided" if config.guided_matching else work,
+                                                 sfm_stats, config, names, known_c2w)
+        except UserError as exc:
+            if poses != "auto":
+                raise
+            rec.fallback = str(exc)
+            rec.mode = "known"
+    if rec.mode == "known":
+        colmap_rec = C.triangulate_known(db_path, work, names, known_c2w, seed=config.seed,
+                                         num_threads=config.num_threads, min_inliers=config.min_inliers)
+        rec.arr = C.reconstruction_arrays(colmap_rec, names)
+        if len(rec.arr.points) == 0:
+            raise UserError(
+                f"triangulation with the known poses produced no points ({stats.verified_total} verified "
+                f"matches over {stats.pairs_verified} view pairs); check the poses in transforms.json and the "
+                f"selected bands", file=Path(scene.root) / "transforms.json", field="frames")
+    return rec
+
+
+def _final_cameras(rec: _Reconstruction) -> None:
+    """rec.c2w: the reconstructed pose of each registered view, the known pose of the others."""
+    n_frames = len(rec.known_c2w)
+    arr, known_c2w = rec.arr, rec.known_c2w
+    rec.registered = np.array([c is not None for c in arr.c2w])
+    rec.c2w = np.stack([arr.c2w[i] if rec.registered[i] else known_c2w[i] for i in range(n_frames)])
+    if rec.mode == "known":  # poses must be untouched by the triangulator
+        drift = max(float(np.abs(arr.c2w[i] - known_c2w[i]).max()) for i in range(n_frames) if rec.registered[i])
+        if drift > 1e-6:
+            raise RuntimeError(f"COLMAP's triangulator changed the known poses (by {drift:g})")
+
+
+def _filter_points(rec: _Reconstruction, intr, config: InitConfig) -> None:
+    """Keep well-constrained points: enough views and a small mean reprojection error (rec.points,
+    rec.point_err, rec.rep_err; the observations of rec.arr are filtered in place)."""
+    arr = rec.arr
+    points = arr.points
+    rep_err = reprojection_errors(points, rec.c2w, intr, arr.obs_frame, arr.obs_point, arr.obs_xy)
+    point_err = np.zeros(len(points))
+    if len(points):
+        np.add.at(point_err, arr.obs_point, rep_err)
+        point_err /= np.maximum(arr.track_len, 1)
+    keep = (arr.track_len >= config.min_track_length) & (point_err <= config.max_point_error_px)
+    n_before = len(points)
+    if not keep.all():
+        new_id = np.cumsum(keep) - 1
+        ok_obs = keep[arr.obs_point]
+        arr.obs_frame, arr.obs_xy = arr.obs_frame[ok_obs], arr.obs_xy[ok_obs]
+        arr.obs_point = new_id[arr.obs_point[ok_obs]]
+        rep_err = rep_err[ok_obs]
+        points, point_err, arr.track_len = points[keep], point_err[keep], arr.track_len[keep]
+    if len(points) == 0:
+        raise UserError(f"no sparse point has a track of >= {config.min_track_length} views and a mean "
+                        f"reprojection error <= {config.max_point_error_px} px ({n_before} before filtering)",
+                        field="poses")
+    rec.points, rec.point_err, rec.rep_err, rec.n_before = points, point_err, rep_err, n_before
+
+
+def _report(scene, config: InitConfig, poses: str, bands: list[int], rec: _Reconstruction, geometry: dict,
+            factor: int, timings: dict, selection) -> dict:
+    """Content of init_report.json."""
+    names = [f.name for f in scene.frames]
+    n_frames = len(names)
+    points, registered, rep_err = rec.points, rec.registered, rec.rep_err
+    return {
+        "scene": str(scene.root),
+        "poses": rec.mode,
+        "poses_requested": poses,
+        "fallback": rec.fallback,
+        "bands": {"indices": bands, "wavelengths_nm": [float(scene.wavelengths_nm[i]) for i in bands],
+                  "strategy": getattr(selection, "strategy", None)},
+        "views": n_frames,
+        "registered_views": int(registered.sum()),
+        "unregistered_views": [names[i] for i in range(n_frames) if not registered[i]],
+        "points": int(len(points)),
+        "points_removed_by_filter": int(rec.n_before - len(points)),
+        "mean_track_length": float(rec.arr.track_len.mean()) if len(points) else None,
+        "mean_reprojection_error_px": float(rep_err.mean()) if len(rep_err) else None,
+        "geometry": geometry,
+        "guided_verified_matches": None if rec.guided_stats is None else int(rec.guided_stats.verified_total),
+        "alignment": rec.alignment,
+        "truth": truth_checks(scene, [rec.c2w[i] if registered[i] else None for i in range(n_frames)], points),
+        "image_size": [int(scene.width), int(scene.height)],
+        "detect_downscale": int(factor),
+        "detect_upsample": _upsample(scene, config, "sfm" if rec.mode == "sfm" or rec.fallback else "known"),
+        "settings": asdict(config),
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "definitions": DEFINITIONS,
+    }
+
+
 def _cube_bytes(scene, bands) -> int:
     return len(scene.frames) * scene.width * scene.height * len(bands) * 4
 
 
 def _run_sfm(scene, db_path, work, stats, config: InitConfig, names, known_c2w):
     """Incremental mapping, checks, and similarity alignment to the transforms.json camera centres."""
-    from brfgs.init import colmap as C
-    from brfgs.init.align import umeyama_robust
+    from brfgs.init import colmap as C  # lazy: pulls in pycolmap (must follow zlib, see init/__init__.py)
 
     n = len(names)
     if stats.pairs_verified == 0:
@@ -434,122 +461,9 @@ def _run_sfm(scene, db_path, work, stats, config: InitConfig, names, known_c2w):
     return rec, arr, alignment
 
 
-# ------------------------------------------------------------------------------------------ outputs
-def write_points_ply(path: Path, points, colors, wavelengths_nm, band_indices, track_length=None,
-                     error_px=None) -> None:
-    """Binary PLY: x, y, z (float32, m, ENU), red/green/blue (uint8 stretch of up to 3 bands for viewing),
-    refl_<band index> (float32 reflectance per selected band), track_length, error_px."""
-    import zlib  # noqa: F401
-
-    from plyfile import PlyData, PlyElement
-
-    pts = np.asarray(points, np.float32).reshape(-1, 3)
-    cols = np.asarray(colors, np.float32).reshape(len(pts), -1)
-    dtype = [("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    dtype += [(f"refl_{int(b)}", "f4") for b in band_indices]
-    dtype += [("track_length", "i4"), ("error_px", "f4")]
-    v = np.zeros(len(pts), dtype=dtype)
-    v["x"], v["y"], v["z"] = pts.T
-    rgb = cols[:, :3] if cols.shape[1] >= 3 else np.repeat(cols[:, :1], 3, axis=1)
-    if len(pts):
-        hi = np.nanpercentile(rgb, 99, axis=0) if np.isfinite(rgb).any() else np.ones(3)
-        hi = np.where(np.isfinite(hi) & (hi > 0), hi, 1.0)
-        u8 = np.clip(np.nan_to_num(rgb / hi) * 255, 0, 255).astype(np.uint8)
-        v["red"], v["green"], v["blue"] = u8.T
-    for j, b in enumerate(band_indices):
-        v[f"refl_{int(b)}"] = cols[:, j]
-    if track_length is not None:
-        v["track_length"] = track_length
-    if error_px is not None:
-        v["error_px"] = error_px
-    comments = ["brfgs sparse points (ENU metres)",
-                "bands " + " ".join(f"{int(b)}:{float(w):.2f}nm" for b, w in zip(band_indices, wavelengths_nm))]
-    PlyData([PlyElement.describe(v, "vertex")], comments=comments).write(str(path))
-
-
-def write_outputs(out: Path, scene, res: InitResult, selection=None) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    wl = [float(scene.wavelengths_nm[i]) for i in res.band_indices]
-    write_points_ply(out / "points.ply", res.points, res.colors, wl, res.band_indices, res.track_length,
-                     res.error_px)
-    intr = scene.intrinsics
-    cams = {"convention": "nerfstudio transform_matrix: OpenGL camera-to-world, ENU metres",
-            "poses": res.report.get("poses"),
-            "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
-            "frames": [{"name": f.name, "transform_matrix": res.c2w[i].tolist(), "registered": bool(res.registered[i])}
-                       for i, f in enumerate(scene.frames)]}
-    (out / "cameras.json").write_text(json.dumps(cams, indent=1))
-    (out / "init_report.json").write_text(json.dumps(res.report, indent=1))
-    (out / "init_report.md").write_text(report_markdown(res.report))
-    if selection is not None:
-        (out / "bands.json").write_text(json.dumps(selection.to_json(), indent=1))
-
-
-def _fmt(x, spec=".3g"):
-    return "n/a" if x is None else format(x, spec)
-
-
-def _bands_text(b: dict) -> str:
-    pairs = list(zip(b["indices"], b["wavelengths_nm"]))
-    if len(pairs) <= 12:
-        return ", ".join(f"{i} ({w:.1f} nm)" for i, w in pairs)
-    return f"{len(pairs)} bands, {pairs[0][1]:.0f}-{pairs[-1][1]:.0f} nm"
-
-
-def report_markdown(r: dict) -> str:
-    g = r["geometry"]
-    lines = [f"# Initialisation report: {r['scene']}", "",
-             f"- poses: **{r['poses']}** (requested {r['poses_requested']})"
-             + (f"; SfM failed, fell back to transforms.json poses: {r['fallback']}" if r.get("fallback") else ""),
-             f"- bands ({r['bands']['strategy'] or 'given'}): {_bands_text(r['bands'])}",
-             f"- registered views: {r['registered_views']} / {r['views']}"
-             + (f" (not registered: {', '.join(r['unregistered_views'])})" if r["unregistered_views"] else ""),
-             f"- sparse points: {r['points']}, mean track length {_fmt(r['mean_track_length'])}, "
-             f"mean reprojection error {_fmt(r['mean_reprojection_error_px'])} px",
-             f"- detected features per view: {_fmt(g['mean_detected_features_per_view'], '.1f')}; "
-             f"matching success rate {_fmt(g['matching_success_rate'], '.1%')} "
-             f"({g['verified_matches']} verified / {g['putative_matches']} putative matches)"]
-    if r.get("alignment"):
-        a = r["alignment"]
-        lines.append(f"- alignment to ENU: scale {a['scale']:.4g}, centre residual median "
-                     f"{a['residual_m']['median']:.3g} m, max {a['residual_m']['max']:.3g} m")
-    t = r.get("truth")
-    if t:
-        lines += ["", "## Against truth", "",
-                  f"- camera-centre error: median {_fmt(t['camera_centre_error_rel']['median'], '.3%')}, "
-                  f"max {_fmt(t['camera_centre_error_rel']['max'], '.3%')} of the camera distance "
-                  f"({t['camera_distance_m_median']:.3g} m)"
-                  + (f"; views above 1%: {', '.join(t['views_above_1pct'])}" if t.get("views_above_1pct") else
-                     "; no view above 1%")]
-        if t.get("point_to_surface_m"):
-            lines.append(f"- point-to-surface distance: median {t['point_to_surface_m']['median']:.4g} m "
-                         f"= {t['point_to_surface_rel']['median']:.3%} of the camera distance "
-                         f"(p90 {t['point_to_surface_rel']['p90']:.3%})")
-        else:
-            lines.append(f"- point-to-surface distance: n/a ({t.get('point_to_surface_m_reason')})")
-    if r.get("strategies"):
-        lines += ["", "## Band-selection strategies (paper Table 2, geometry columns)", "", strategies_table(r["strategies"])]
-    lines += ["", "## Definitions", ""] + [f"- {k}: {v}" for k, v in r["definitions"].items()]
-    return "\n".join(lines) + "\n"
-
-
-def strategies_table(rows: list[dict]) -> str:
-    """Markdown table of the Table 2 geometry columns."""
-    out = ["| Strategy | Bands (nm) | Detected features / view | Matching success rate | Verified matches |",
-           "|---|---|---|---|---|"]
-    for row in rows:
-        wl = row["wavelengths_nm"]
-        wl_s = ", ".join(f"{w:.0f}" for w in wl) if len(wl) <= 4 else f"{len(wl)} bands ({wl[0]:.0f}-{wl[-1]:.0f})"
-        out.append(f"| {row['label']} | {wl_s} | {row['mean_detected_features_per_view']:.0f} | "
-                   f"{_fmt(row['matching_success_rate'], '.1%')} | {row['verified_matches']} |")
-    return "\n".join(out)
-
-
 def strategy_ablation(scene, strategies=None, top: int = 3, stats=None, config: InitConfig | None = None,
                       progress: bool = False) -> list[dict]:
     """Table 2 geometry columns (detected features per view, matching success rate) for each strategy."""
-    from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES, compute_band_stats, select_bands
-
     config = config or InitConfig()
     strategies = list(strategies or TABLE2_STRATEGIES)
     if stats is None:
@@ -567,7 +481,7 @@ def strategy_ablation(scene, strategies=None, top: int = 3, stats=None, config: 
             rows.append(row)
             if progress:
                 print(f"  {s:14s} features/view {row['mean_detected_features_per_view']:8.1f}  success "
-                      f"{_fmt(row['matching_success_rate'], '.1%')}", flush=True)
+                      f"{fmt_or_na(row['matching_success_rate'], '.1%')}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return rows

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from brfgs.bands.efc import detect_keypoints, make_sift, stretch_to_uint8
 
@@ -51,8 +53,6 @@ def dedupe_keypoints(xy: np.ndarray, response: np.ndarray, radius_px: float = DE
     order = np.lexsort((np.arange(n), -np.asarray(response)))  # strongest first, stable
     if radius_px <= 0:
         return order
-    from scipy.spatial import cKDTree
-
     pts = np.asarray(xy, np.float64)
     dn = None
     if desc is not None:
@@ -223,8 +223,6 @@ def nadir_rectification(c2w_gl: np.ndarray, fx: float, fy: float, cx: float, cy:
 
 def rectify_cube(cube: np.ndarray, rect: Rectification) -> tuple[np.ndarray, np.ndarray]:
     """Warp ``cube`` [H, W, k] onto the rectified canvas (bicubic); returns (canvas [h', w', k], valid [h', w'])."""
-    import cv2
-
     cube = np.asarray(cube, np.float32)
     ok = np.isfinite(cube).all(-1)
     filled = np.where(ok[:, :, None], cube, 0.0).astype(np.float32)

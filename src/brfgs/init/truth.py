@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from brfgs.data.cameras import pixel_rays
 
@@ -66,8 +67,6 @@ def surface_samples(scene, views: list[int] | None = None) -> np.ndarray | None:
 
 def point_to_surface_m(points: np.ndarray, samples: np.ndarray, k: int = 8) -> np.ndarray:
     """Distance [P] of each point to the plane through its ``k`` nearest surface samples."""
-    from scipy.spatial import cKDTree
-
     points = np.asarray(points, float)
     if len(points) == 0:
         return np.zeros(0)

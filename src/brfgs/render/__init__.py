@@ -16,12 +16,16 @@ Backends
 ``auto``   ``cuda`` when the inputs are CUDA tensors, else ``cpu``.
 
 Semantics (all backends; details in ``brfgs.render._common``): EWA projection with the 0.3 px²
-low-pass, 16×16 tiles, front-to-back alpha compositing in stable depth order, α clamped to
-0.99, pairs with α < 1/255 skipped, a pixel stops before its transmittance drops below 1e-4.
+low-pass, near/far planes at 0.01 m / 1e10 m, 16×16 tiles, front-to-back alpha compositing in
+stable depth order, α clamped to 0.99, pairs with α < 1/255 skipped, a pixel stops before its
+transmittance drops below 1e-4.
 ``depth`` is the expected depth Σ wᵢ zᵢ / Σ wᵢ (normalised by alpha; 0 where alpha = 0);
 the unnormalised Σ wᵢ zᵢ is ``meta["depth_accum"]``. ``normal`` composites the given per-Gaussian
 normals like features (Σ wᵢ nᵢ, not normalised). ``meta["means2d"].grad`` after backward is the
 screen-space positional gradient in pixels (3DGS densification statistic).
+
+Geometry shared with the reflectance head and the trainer (one copy of each formula) is in
+``brfgs.render.geometry``: ``quat_to_rotmat`` and ``project_pinhole``.
 
 Threads
 -------

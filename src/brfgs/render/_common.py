@@ -17,6 +17,8 @@ All backends implement the same 3DGS semantics (Kerbl et al. 2023, as in gsplat)
 
 from __future__ import annotations
 
+from typing import Any
+
 # NOTE: the numba kernels freeze these constants at compile time and numba's on-disk cache
 # only watches _numba_kernels.py: after changing a constant here, touch that file (or delete
 # src/brfgs/render/__pycache__) so that the kernels recompile.
@@ -34,8 +36,12 @@ EXTENT_REL = 1e-6
 EXTENT_ABS = 1e-6
 
 
-def fov_limits(K, width: int, height: int) -> tuple[float, float, float, float]:
-    """(lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos): bounds of x/z and y/z in the EWA Jacobian."""
+def fov_limits(
+    K: Any,  # [3, 3] px: tensor, array or nested lists
+    width: int,  # px
+    height: int,  # px
+) -> tuple[float, float, float, float]:  # lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos
+    """Bounds of x/z and y/z in the EWA Jacobian: 1.3× the half field of view (gsplat)."""
     fx, fy, cx, cy = float(K[0][0]), float(K[1][1]), float(K[0][2]), float(K[1][2])
     tan_x = 0.5 * width / fx
     tan_y = 0.5 * height / fy
@@ -43,7 +49,10 @@ def fov_limits(K, width: int, height: int) -> tuple[float, float, float, float]:
             cy / fy + (CLAMP_FOV - 1.0) * tan_y, (height - cy) / fy + (CLAMP_FOV - 1.0) * tan_y)
 
 
-def n_tiles(width: int, height: int) -> tuple[int, int]:
-    """Number of tiles along x and y."""
+def n_tiles(
+    width: int,  # px
+    height: int,  # px
+) -> tuple[int, int]:  # tiles along x, along y
+    """Number of 16×16 tiles covering the image."""
     return (width + TILE - 1) // TILE, (height + TILE - 1) // TILE
 

@@ -1,14 +1,14 @@
 """numba kernels of the ``cpu`` rasterizer: projection, binning, tile raster, and their backward.
 
-Everything is compiled with ``cache=True`` (the first import compiles for ~15–30 s and writes
-``__pycache__``; later processes load the cache). Kernels work for float32 and float64
-arrays; scalar arithmetic inside is float64. Semantics: see ``brfgs.render._common``.
+Everything is compiled with ``cache=True`` (the first use compiles for ~15–30 s and writes ``__pycache__``;
+later processes load the cache; a kernel compiled in the process and one loaded from the cache may differ
+in the last bits in float64). Kernels work for float32 and float64 arrays; scalar arithmetic inside is
+float64. Semantics: see ``brfgs.render._common``.
 
 Parallel structure (``prange``):
 * projection forward/backward: one iteration per Gaussian;
-* raster forward/backward: one iteration per 16×16 tile. A Gaussian is iterated only over
-  the pixels of its α ≥ 1/255 ellipse inside the tile (row spans from the conic), not over
-  every pixel of the tile;
+* raster forward/backward: one iteration per 16×16 tile. A Gaussian is iterated only over the pixels
+  of its α ≥ 1/255 ellipse inside the tile (row spans from the conic), not over every pixel of the tile;
 * the backward writes one gradient row per tile–Gaussian entry (race free) and a second
   pass, one iteration per Gaussian, reduces the entries of each Gaussian.
 """
@@ -20,9 +20,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from brfgs.render._common import (
-    ALPHA_MAX, ALPHA_MIN, EPS2D, EXTENT_ABS, EXTENT_REL, T_MIN, TILE,
-)
+from brfgs.render._common import ALPHA_MAX, ALPHA_MIN, EPS2D, EXTENT_ABS, EXTENT_REL, T_MIN, TILE
 
 _FM = {"nsz", "arcp", "contract", "reassoc"}  # fast-math without nnan/ninf/afn
 
@@ -33,6 +31,66 @@ def _rotmat(qw, qx, qy, qz):
     return (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy),
             2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx),
             2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
+
+
+@njit(cache=True, inline="always")
+def _to_camera(view, means, i):
+    """Camera coordinates (x, y, z) of Gaussian i's mean (view: world-to-camera [4, 4])."""
+    mx_ = float(means[i, 0]); my_ = float(means[i, 1]); mz_ = float(means[i, 2])
+    x = view[0, 0] * mx_ + view[0, 1] * my_ + view[0, 2] * mz_ + view[0, 3]
+    y = view[1, 0] * mx_ + view[1, 1] * my_ + view[1, 2] * mz_ + view[1, 3]
+    z = view[2, 0] * mx_ + view[2, 1] * my_ + view[2, 2] * mz_ + view[2, 3]
+    return x, y, z
+
+
+@njit(cache=True, inline="always")
+def _mm3(l00, l01, l02, l10, l11, l12, l20, l21, l22, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """3×3 product L·R, 9 scalars row-major; entry (i, j) = L[i,0] R[0,j] + L[i,1] R[1,j] + L[i,2] R[2,j]."""
+    return (l00 * r00 + l01 * r10 + l02 * r20, l00 * r01 + l01 * r11 + l02 * r21, l00 * r02 + l01 * r12 + l02 * r22,
+            l10 * r00 + l11 * r10 + l12 * r20, l10 * r01 + l11 * r11 + l12 * r21, l10 * r02 + l11 * r12 + l12 * r22,
+            l20 * r00 + l21 * r10 + l22 * r20, l20 * r01 + l21 * r11 + l22 * r21, l20 * r02 + l21 * r12 + l22 * r22)
+
+
+@njit(cache=True, inline="always")
+def _gaussian_axes(view, quats, scales, i):
+    """Gaussian i: 26 scalars qw, qx, qy, qz (unit), qn (the norm divided by), r00 .. r22 (R row-major),
+    s0, s1, s2 (S) and a00 .. a22 (A = Rw · R · S row-major, the camera-space covariance square root)."""
+    qw0 = float(quats[i, 0]); qx0 = float(quats[i, 1]); qy0 = float(quats[i, 2]); qz0 = float(quats[i, 3])
+    qn = math.sqrt(qw0 * qw0 + qx0 * qx0 + qy0 * qy0 + qz0 * qz0)
+    qw = qw0 / qn; qx = qx0 / qn; qy = qy0 / qn; qz = qz0 / qn
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw, qx, qy, qz)
+    s0 = float(scales[i, 0]); s1 = float(scales[i, 1]); s2 = float(scales[i, 2])
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = _mm3(
+        view[0, 0], view[0, 1], view[0, 2], view[1, 0], view[1, 1], view[1, 2], view[2, 0], view[2, 1], view[2, 2],
+        r00 * s0, r01 * s1, r02 * s2, r10 * s0, r11 * s1, r12 * s2, r20 * s0, r21 * s1, r22 * s2)
+    return (qw, qx, qy, qz, qn, r00, r01, r02, r10, r11, r12, r20, r21, r22, s0, s1, s2,
+            a00, a01, a02, a10, a11, a12, a20, a21, a22)
+
+
+@njit(cache=True, inline="always")
+def _ewa_jacobian(fx, fy, lxn, lxp, lyn, lyp, x, y, z):
+    """(rz, xz, yz, txz, tyz, j00, j02, j11, j12): 1/z, x/z and y/z, the same clamped to the bounds lxn ..
+    lyp of ``_common.fov_limits``, and the non-zero entries of the EWA Jacobian J (2×3)."""
+    rz = 1.0 / z
+    xz = x * rz
+    yz = y * rz
+    txz = min(lxp, max(-lxn, xz))
+    tyz = min(lyp, max(-lyn, yz))
+    j00 = fx * rz; j02 = -fx * txz * rz
+    j11 = fy * rz; j12 = -fy * tyz * rz
+    return rz, xz, yz, txz, tyz, j00, j02, j11, j12
+
+
+@njit(cache=True, inline="always")
+def _cov2d(j00, j02, j11, j12, a00, a01, a02, a10, a11, a12, a20, a21, a22):
+    """(b00 .. b12, ca, cb, cc, det): B = J · A (2×3), cov2 = B Bᵀ + 0.3 I = [[ca, cb], [cb, cc]], det cov2."""
+    b00 = j00 * a00 + j02 * a20; b01 = j00 * a01 + j02 * a21; b02 = j00 * a02 + j02 * a22
+    b10 = j11 * a10 + j12 * a20; b11 = j11 * a11 + j12 * a21; b12 = j11 * a12 + j12 * a22
+    ca = b00 * b00 + b01 * b01 + b02 * b02 + EPS2D
+    cb = b00 * b10 + b01 * b11 + b02 * b12
+    cc = b10 * b10 + b11 * b11 + b12 * b12 + EPS2D
+    det = ca * cc - cb * cb
+    return b00, b01, b02, b10, b11, b12, ca, cb, cc, det
 
 
 @njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
@@ -49,10 +107,7 @@ def project_fwd(means, quats, scales, opac, view, cam, width, height, near, far,
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lxn, lxp, lyn, lyp = cam[4], cam[5], cam[6], cam[7]
     for i in prange(N):
-        mx_ = float(means[i, 0]); my_ = float(means[i, 1]); mz_ = float(means[i, 2])
-        x = view[0, 0] * mx_ + view[0, 1] * my_ + view[0, 2] * mz_ + view[0, 3]
-        y = view[1, 0] * mx_ + view[1, 1] * my_ + view[1, 2] * mz_ + view[1, 3]
-        z = view[2, 0] * mx_ + view[2, 1] * my_ + view[2, 2] * mz_ + view[2, 3]
+        x, y, z = _to_camera(view, means, i)
         depths[i] = z
         visible[i] = False
         radii[i, 0] = 0.0
@@ -63,36 +118,10 @@ def project_fwd(means, quats, scales, opac, view, cam, width, height, near, far,
         o = float(opac[i])
         if not (z > near and z < far) or not (o > ALPHA_MIN):
             continue
-        qw = float(quats[i, 0]); qx = float(quats[i, 1]); qy = float(quats[i, 2]); qz = float(quats[i, 3])
-        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qw /= qn; qx /= qn; qy /= qn; qz /= qn
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw, qx, qy, qz)
-        s0 = float(scales[i, 0]); s1 = float(scales[i, 1]); s2 = float(scales[i, 2])
-        # A = Rw · R · S (camera-space square root of the covariance)
-        m00 = r00 * s0; m01 = r01 * s1; m02 = r02 * s2
-        m10 = r10 * s0; m11 = r11 * s1; m12 = r12 * s2
-        m20 = r20 * s0; m21 = r21 * s1; m22 = r22 * s2
-        a00 = view[0, 0] * m00 + view[0, 1] * m10 + view[0, 2] * m20
-        a01 = view[0, 0] * m01 + view[0, 1] * m11 + view[0, 2] * m21
-        a02 = view[0, 0] * m02 + view[0, 1] * m12 + view[0, 2] * m22
-        a10 = view[1, 0] * m00 + view[1, 1] * m10 + view[1, 2] * m20
-        a11 = view[1, 0] * m01 + view[1, 1] * m11 + view[1, 2] * m21
-        a12 = view[1, 0] * m02 + view[1, 1] * m12 + view[1, 2] * m22
-        a20 = view[2, 0] * m00 + view[2, 1] * m10 + view[2, 2] * m20
-        a21 = view[2, 0] * m01 + view[2, 1] * m11 + view[2, 2] * m21
-        a22 = view[2, 0] * m02 + view[2, 1] * m12 + view[2, 2] * m22
-        rz = 1.0 / z
-        txz = min(lxp, max(-lxn, x * rz))
-        tyz = min(lyp, max(-lyn, y * rz))
-        j00 = fx * rz; j02 = -fx * txz * rz
-        j11 = fy * rz; j12 = -fy * tyz * rz
-        # B = J · A  (2×3); cov2 = B Bᵀ
-        b00 = j00 * a00 + j02 * a20; b01 = j00 * a01 + j02 * a21; b02 = j00 * a02 + j02 * a22
-        b10 = j11 * a10 + j12 * a20; b11 = j11 * a11 + j12 * a21; b12 = j11 * a12 + j12 * a22
-        ca = b00 * b00 + b01 * b01 + b02 * b02 + EPS2D
-        cb = b00 * b10 + b01 * b11 + b02 * b12
-        cc = b10 * b10 + b11 * b11 + b12 * b12 + EPS2D
-        det = ca * cc - cb * cb
+        a00, a01, a02, a10, a11, a12, a20, a21, a22 = _gaussian_axes(view, quats, scales, i)[17:]  # A only
+        rz, _xz, _yz, _txz, _tyz, j00, j02, j11, j12 = _ewa_jacobian(fx, fy, lxn, lxp, lyn, lyp, x, y, z)
+        _b00, _b01, _b02, _b10, _b11, _b12, ca, cb, cc, det = _cov2d(
+            j00, j02, j11, j12, a00, a01, a02, a10, a11, a12, a20, a21, a22)
         if not (det > 0.0):
             continue
         u = fx * x * rz + cx
@@ -141,42 +170,14 @@ def project_bwd(means, quats, scales, view, cam, visible, v_means2d, v_conics, v
             v_quats[i, k] = 0.0
         if not visible[i]:
             continue
-        mx_ = float(means[i, 0]); my_ = float(means[i, 1]); mz_ = float(means[i, 2])
-        x = view[0, 0] * mx_ + view[0, 1] * my_ + view[0, 2] * mz_ + view[0, 3]
-        y = view[1, 0] * mx_ + view[1, 1] * my_ + view[1, 2] * mz_ + view[1, 3]
-        z = view[2, 0] * mx_ + view[2, 1] * my_ + view[2, 2] * mz_ + view[2, 3]
-        qw0 = float(quats[i, 0]); qx0 = float(quats[i, 1]); qy0 = float(quats[i, 2]); qz0 = float(quats[i, 3])
-        qn = math.sqrt(qw0 * qw0 + qx0 * qx0 + qy0 * qy0 + qz0 * qz0)
-        qw = qw0 / qn; qx = qx0 / qn; qy = qy0 / qn; qz = qz0 / qn
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw, qx, qy, qz)
-        s0 = float(scales[i, 0]); s1 = float(scales[i, 1]); s2 = float(scales[i, 2])
-        m00 = r00 * s0; m01 = r01 * s1; m02 = r02 * s2
-        m10 = r10 * s0; m11 = r11 * s1; m12 = r12 * s2
-        m20 = r20 * s0; m21 = r21 * s1; m22 = r22 * s2
-        a00 = view[0, 0] * m00 + view[0, 1] * m10 + view[0, 2] * m20
-        a01 = view[0, 0] * m01 + view[0, 1] * m11 + view[0, 2] * m21
-        a02 = view[0, 0] * m02 + view[0, 1] * m12 + view[0, 2] * m22
-        a10 = view[1, 0] * m00 + view[1, 1] * m10 + view[1, 2] * m20
-        a11 = view[1, 0] * m01 + view[1, 1] * m11 + view[1, 2] * m21
-        a12 = view[1, 0] * m02 + view[1, 1] * m12 + view[1, 2] * m22
-        a20 = view[2, 0] * m00 + view[2, 1] * m10 + view[2, 2] * m20
-        a21 = view[2, 0] * m01 + view[2, 1] * m11 + view[2, 2] * m21
-        a22 = view[2, 0] * m02 + view[2, 1] * m12 + view[2, 2] * m22
-        rz = 1.0 / z
-        xz = x * rz
-        yz = y * rz
+        x, y, z = _to_camera(view, means, i)
+        (qw, qx, qy, qz, qn, r00, r01, r02, r10, r11, r12, r20, r21, r22, s0, s1, s2,
+         a00, a01, a02, a10, a11, a12, a20, a21, a22) = _gaussian_axes(view, quats, scales, i)
+        rz, xz, yz, txz, tyz, j00, j02, j11, j12 = _ewa_jacobian(fx, fy, lxn, lxp, lyn, lyp, x, y, z)
         x_free = (xz >= -lxn) and (xz <= lxp)
         y_free = (yz >= -lyn) and (yz <= lyp)
-        txz = min(lxp, max(-lxn, xz))
-        tyz = min(lyp, max(-lyn, yz))
-        j00 = fx * rz; j02 = -fx * txz * rz
-        j11 = fy * rz; j12 = -fy * tyz * rz
-        b00 = j00 * a00 + j02 * a20; b01 = j00 * a01 + j02 * a21; b02 = j00 * a02 + j02 * a22
-        b10 = j11 * a10 + j12 * a20; b11 = j11 * a11 + j12 * a21; b12 = j11 * a12 + j12 * a22
-        ca = b00 * b00 + b01 * b01 + b02 * b02 + EPS2D
-        cb = b00 * b10 + b01 * b11 + b02 * b12
-        cc = b10 * b10 + b11 * b11 + b12 * b12 + EPS2D
-        det = ca * cc - cb * cb
+        b00, b01, b02, b10, b11, b12, ca, cb, cc, det = _cov2d(
+            j00, j02, j11, j12, a00, a01, a02, a10, a11, a12, a20, a21, a22)
         X00 = cc / det; X01 = -cb / det; X11 = ca / det
         # Symmetric gradient of the conic matrix X: off-diagonal entries get half of dL/db.
         G00 = float(v_conics[i, 0]); G01 = 0.5 * float(v_conics[i, 1]); G11 = float(v_conics[i, 2])
@@ -198,15 +199,9 @@ def project_bwd(means, quats, scales, view, cam, visible, v_means2d, v_conics, v
         ga10 = j11 * gb10; ga11 = j11 * gb11; ga12 = j11 * gb12
         ga20 = j02 * gb00 + j12 * gb10; ga21 = j02 * gb01 + j12 * gb11; ga22 = j02 * gb02 + j12 * gb12
         # A = Rw M → dL/dM = Rwᵀ gA
-        gm00 = view[0, 0] * ga00 + view[1, 0] * ga10 + view[2, 0] * ga20
-        gm01 = view[0, 0] * ga01 + view[1, 0] * ga11 + view[2, 0] * ga21
-        gm02 = view[0, 0] * ga02 + view[1, 0] * ga12 + view[2, 0] * ga22
-        gm10 = view[0, 1] * ga00 + view[1, 1] * ga10 + view[2, 1] * ga20
-        gm11 = view[0, 1] * ga01 + view[1, 1] * ga11 + view[2, 1] * ga21
-        gm12 = view[0, 1] * ga02 + view[1, 1] * ga12 + view[2, 1] * ga22
-        gm20 = view[0, 2] * ga00 + view[1, 2] * ga10 + view[2, 2] * ga20
-        gm21 = view[0, 2] * ga01 + view[1, 2] * ga11 + view[2, 2] * ga21
-        gm22 = view[0, 2] * ga02 + view[1, 2] * ga12 + view[2, 2] * ga22
+        gm00, gm01, gm02, gm10, gm11, gm12, gm20, gm21, gm22 = _mm3(
+            view[0, 0], view[1, 0], view[2, 0], view[0, 1], view[1, 1], view[2, 1], view[0, 2], view[1, 2],
+            view[2, 2], ga00, ga01, ga02, ga10, ga11, ga12, ga20, ga21, ga22)
         # M = R S
         v_scales[i, 0] = gm00 * r00 + gm10 * r10 + gm20 * r20
         v_scales[i, 1] = gm01 * r01 + gm11 * r11 + gm21 * r21
@@ -299,6 +294,52 @@ def _span(a, inv_a, b, c, smax, dy, mx, x0, x1):
     return lo, hi
 
 
+@njit(cache=True, inline="always")
+def _tile(tile_start, t, n_tiles_x, width, height):
+    """Pixel box [x0, x1) × [y0, y1) of tile t and its entries [s, e) in the tile lists."""
+    tx = t % n_tiles_x
+    ty = t // n_tiles_x
+    x0 = tx * TILE
+    y0 = ty * TILE
+    x1 = min(x0 + TILE, width)
+    y1 = min(y0 + TILE, height)
+    return x0, y0, x1, y1, tile_start[t], tile_start[t + 1]
+
+
+@njit(cache=True, inline="always")
+def _tile_state():
+    """Per-pixel state of a tile: transmittance T (1) and 1 + local index of the last entry (0)."""
+    return np.ones(TILE * TILE, np.float64), np.zeros(TILE * TILE, np.int32)
+
+
+@njit(cache=True, inline="always")
+def _sigma(a, b, c, px, mx, dy):
+    """(dx, σ) of the pixel column px: dx = pixel centre − mean, σ = ½(a dx² + c dy²) + b dx dy."""
+    dx = px + 0.5 - mx
+    return dx, 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+
+
+@njit(cache=True, inline="always")
+def _exp_neg(wbuf, sigma):
+    """exp(−σ) in the precision of ``wbuf`` (expf for a float32 buffer)."""
+    wbuf[0] = -sigma
+    return math.exp(wbuf[0])
+
+
+@njit(cache=True, inline="always")
+def _splat(means2d, conics, opac, radii, smax_all, g, y0, y1):
+    """(mx, my, a, b, c, o, smax, inv_a, ya, yb) of Gaussian g; [ya, yb]: the rows of [y0, y1) it reaches."""
+    mx = float(means2d[g, 0]); my = float(means2d[g, 1])
+    a = float(conics[g, 0]); b = float(conics[g, 1]); c = float(conics[g, 2])
+    o = float(opac[g])
+    smax = smax_all[g]
+    inv_a = 1.0 / a
+    ry = float(radii[g, 1])
+    ya = max(y0, int(math.floor(my - ry - 0.5)))
+    yb = min(y1 - 1, int(math.ceil(my + ry - 0.5)))
+    return mx, my, a, b, c, o, smax, inv_a, ya, yb
+
+
 @njit(cache=True, parallel=True, fastmath=_FM, nogil=True)
 def raster_fwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_gid, width, height, n_tiles_x,
                image, t_final, n_used):
@@ -308,18 +349,9 @@ def raster_fwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
     n_used [H,W] int32: 1 + local index (in its tile list) of the last composited entry, 0 if none.
     """
     D = colors.shape[1]
-    n_tiles_total = tile_start.shape[0] - 1
-    for t in prange(n_tiles_total):
-        tx = t % n_tiles_x
-        ty = t // n_tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
-        s = tile_start[t]
-        e = tile_start[t + 1]
-        T = np.ones(TILE * TILE, np.float64)
-        last = np.zeros(TILE * TILE, np.int32)
+    for t in prange(tile_start.shape[0] - 1):
+        x0, y0, x1, y1, s, e = _tile(tile_start, t, n_tiles_x, width, height)
+        T, last = _tile_state()
         done = np.zeros(TILE * TILE, np.bool_)
         acc = np.zeros((TILE * TILE, D), image.dtype)
         wbuf = np.zeros(1, image.dtype)  # casts the weight to the image dtype for the channel loop
@@ -327,14 +359,7 @@ def raster_fwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
         n_pix = (x1 - x0) * (y1 - y0)
         for k in range(s, e):
             g = tile_gid[k]
-            mx = float(means2d[g, 0]); my = float(means2d[g, 1])
-            a = float(conics[g, 0]); b = float(conics[g, 1]); c = float(conics[g, 2])
-            o = float(opac[g])
-            smax = smax_all[g]
-            inv_a = 1.0 / a
-            ry = float(radii[g, 1])
-            ya = max(y0, int(math.floor(my - ry - 0.5)))
-            yb = min(y1 - 1, int(math.ceil(my + ry - 0.5)))
+            mx, my, a, b, c, o, smax, inv_a, ya, yb = _splat(means2d, conics, opac, radii, smax_all, g, y0, y1)
             for py in range(ya, yb + 1):
                 dy = py + 0.5 - my
                 lo, hi = _span(a, inv_a, b, c, smax, dy, mx, x0, x1)
@@ -343,12 +368,10 @@ def raster_fwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
                     li = row + px
                     if done[li]:
                         continue
-                    dx = px + 0.5 - mx
-                    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+                    dx, sigma = _sigma(a, b, c, px, mx, dy)
                     if sigma < 0.0:
                         continue
-                    wbuf[0] = -sigma  # exp in the image's precision (expf for float32)
-                    al = min(ALPHA_MAX, o * math.exp(wbuf[0]))
+                    al = min(ALPHA_MAX, o * _exp_neg(wbuf, sigma))  # exp in the image's precision
                     if al < ALPHA_MIN:
                         continue
                     Tp = T[li]
@@ -385,19 +408,10 @@ def raster_bwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
     ∂L/∂α_i = T_i s_i − R_i/(1−α_i).
     """
     D = colors.shape[1]
-    n_tiles_total = tile_start.shape[0] - 1
-    for t in prange(n_tiles_total):
-        tx = t % n_tiles_x
-        ty = t // n_tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
-        s = tile_start[t]
-        e = tile_start[t + 1]
-        T = np.ones(TILE * TILE, np.float64)
+    for t in prange(tile_start.shape[0] - 1):
+        x0, y0, x1, y1, s, e = _tile(tile_start, t, n_tiles_x, width, height)
+        T, last = _tile_state()
         R = np.zeros(TILE * TILE, np.float64)
-        last = np.zeros(TILE * TILE, np.int32)
         wbuf = np.zeros(1, e_colors.dtype)
         sbuf = np.zeros(1, e_colors.dtype)
         max_last = 0
@@ -418,14 +432,7 @@ def raster_bwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
         for k in range(s + max_last - 1, s - 1, -1):
             kl = k - s
             g = tile_gid[k]
-            mx = float(means2d[g, 0]); my = float(means2d[g, 1])
-            a = float(conics[g, 0]); b = float(conics[g, 1]); c = float(conics[g, 2])
-            o = float(opac[g])
-            smax = smax_all[g]
-            inv_a = 1.0 / a
-            ry = float(radii[g, 1])
-            ya = max(y0, int(math.floor(my - ry - 0.5)))
-            yb = min(y1 - 1, int(math.ceil(my + ry - 0.5)))
+            mx, my, a, b, c, o, smax, inv_a, ya, yb = _splat(means2d, conics, opac, radii, smax_all, g, y0, y1)
             for ch in range(D):
                 e_colors[k, ch] = 0.0
             g_mx = 0.0; g_my = 0.0; g_a = 0.0; g_b = 0.0; g_c = 0.0; g_o = 0.0
@@ -436,12 +443,10 @@ def raster_bwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
                     li = (py - y0) * TILE + (px - x0)
                     if kl >= last[li]:
                         continue
-                    dx = px + 0.5 - mx
-                    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+                    dx, sigma = _sigma(a, b, c, px, mx, dy)
                     if sigma < 0.0:
                         continue
-                    wbuf[0] = -sigma  # exp in the image's precision (expf for float32)
-                    G = float(math.exp(wbuf[0]))
+                    G = float(_exp_neg(wbuf, sigma))  # exp in the image's precision
                     ar = o * G
                     al = min(ALPHA_MAX, ar)
                     if al < ALPHA_MIN:

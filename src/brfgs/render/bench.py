@@ -17,11 +17,19 @@ just before it, after returning freed heap memory to the OS (MiB; approximate).
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import os
 import statistics
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+
+import torch
+
+from brfgs.render.rasterize import rasterize
+from brfgs.render.scenes import ground_scene
 
 
 @dataclass
@@ -47,9 +55,6 @@ class BenchRow:
 
 def _trim() -> None:
     """Return freed heap memory to the OS (glibc) so that RSS peaks measure one frame."""
-    import ctypes
-    import gc
-
     gc.collect()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
@@ -88,10 +93,7 @@ class _PeakRSS:
 
 
 def _frame(sc, backend: str, backward: bool, params=None):
-    import torch
-
-    from brfgs.render import rasterize
-
+    """One render of the scene ``sc`` (with ``params``, then backward of Σ image + Σ depth, when ``backward``)."""
     if backward:
         p = params
         out = rasterize(p["means"], p["quats"], p["scales"], p["opacities"], p["features"], sc["viewmat"],
@@ -105,13 +107,12 @@ def _frame(sc, backend: str, backward: bool, params=None):
                       sc["K"], sc["width"], sc["height"], backend=backend)
 
 
-def run_bench(sizes=(128, 256), gaussians=(10_000, 20_000, 50_000, 200_000), channels=(3, 16, 164),
-              repeats: int = 5, backends=("torch", "cpu"), torch_limit_s: float = 10.0, seed: int = 0,
-              progress=None) -> list[BenchRow]:
+def run_bench(sizes: tuple[int, ...] = (128, 256), gaussians: tuple[int, ...] = (10_000, 20_000, 50_000, 200_000),
+              channels: tuple[int, ...] = (3, 16, 164), repeats: int = 5, backends: tuple[str, ...] = ("torch", "cpu"),
+              torch_limit_s: float = 10.0, seed: int = 0,
+              progress: Callable[[BenchRow], None] | None = None) -> list[BenchRow]:
     """Benchmark grid → rows. A ``torch`` configuration whose warm-up frame takes longer than
     ``torch_limit_s`` is not timed further, nor are larger N at the same size and C."""
-    from brfgs.render.scenes import ground_scene
-
     rows: list[BenchRow] = []
 
     def add(row: BenchRow) -> None:

@@ -11,7 +11,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import torch
+from torch import Tensor
 
+from brfgs.render import _numba_kernels as nk
 from brfgs.render._common import ALPHA_MIN, EXTENT_ABS, EXTENT_REL, fov_limits, n_tiles
 from brfgs.render.torch_backend import Projection
 
@@ -31,16 +33,9 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return t.detach().contiguous().numpy()
 
 
-def _kernels():
-    from brfgs.render import _numba_kernels  # compiled (or cache-loaded) on first use
-
-    return _numba_kernels
-
-
 class _ProjectFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, view64, cam, width, height, near, far):
-        nk = _kernels()
         N = means.shape[0]
         dt = means.dtype
         m2d = torch.empty(N, 2, dtype=dt)
@@ -59,7 +54,6 @@ class _ProjectFn(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, v_m2d, v_con, v_dep, _r, _rect, _vis):
-        nk = _kernels()
         means, quats, scales, vis = ctx.saved_tensors
         N = means.shape[0]
         dt = means.dtype
@@ -76,7 +70,6 @@ class _ProjectFn(torch.autograd.Function):
 class _RasterFn(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, binning: _Binning, width, height):
-        nk = _kernels()
         dt = colors.dtype
         D = colors.shape[1]
         image = torch.empty(height, width, D, dtype=dt)
@@ -92,7 +85,6 @@ class _RasterFn(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, v_image, v_alpha):
-        nk = _kernels()
         means2d, conics, opacities, colors, t_final, n_used = ctx.saved_tensors
         b = ctx.binning
         N, D = colors.shape
@@ -121,12 +113,24 @@ class _RasterFn(torch.autograd.Function):
         return v_m2d, v_con, v_op, v_col, None, None, None
 
 
-def dt_np(dt: torch.dtype):
+def dt_np(dt: torch.dtype) -> type:
+    """The numpy dtype of the float tensor dtype ``dt`` (float64 or float32)."""
     return np.float64 if dt == torch.float64 else np.float32
 
 
-def project(means, quats, scales, opacities, viewmat, K, width, height, near, far) -> Projection:
-    """numba EWA projection (same semantics and outputs as ``torch_backend.project``)."""
+def project(
+    means: Tensor,  # [N, 3] m, world
+    quats: Tensor,  # [N, 4] (w, x, y, z), any norm
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    viewmat: Tensor,  # [4, 4] world -> camera (OpenCV axes)
+    K: Tensor,  # [3, 3] px
+    width: int,  # px
+    height: int,  # px
+    near: float,  # m, near plane
+    far: float,  # m, far plane
+) -> Projection:
+    """numba EWA projection (3DGS eqs 5–6), same semantics and outputs as ``torch_backend.project``."""
     view64 = np.ascontiguousarray(viewmat.detach().cpu().double().numpy())
     Kd = K.detach().cpu().double().numpy()
     cam = np.array([Kd[0, 0], Kd[1, 1], Kd[0, 2], Kd[1, 2], *fov_limits(Kd, width, height)], np.float64)
@@ -135,9 +139,13 @@ def project(means, quats, scales, opacities, viewmat, K, width, height, near, fa
     return Projection(m2d, con, dep, rad, rect, vis)
 
 
-def binning(proj: Projection, opacities: torch.Tensor, width: int, height: int) -> _Binning:
-    """Depth sort (stable) and tile lists."""
-    nk = _kernels()
+def binning(
+    proj: Projection,
+    opacities: Tensor,  # [N]
+    width: int,  # px
+    height: int,  # px
+) -> _Binning:
+    """Depth sort (stable) and tile lists of the visible Gaussians."""
     vis = proj.visible.numpy()
     idx = np.flatnonzero(vis)
     z = proj.depths.detach().numpy()[idx]
@@ -151,7 +159,12 @@ def binning(proj: Projection, opacities: torch.Tensor, width: int, height: int) 
     return _Binning(ts, tg, gs, ge, _np(proj.radii_xy), smax, ntx)
 
 
-def raster(proj: Projection, opacities, colors, width: int, height: int):
-    """Composite ``colors`` [N, D] front to back → (image [H, W, D], alpha [H, W])."""
+def raster(
+    proj: Projection,
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D] any channels
+    width: int, height: int,  # px
+) -> tuple[Tensor, Tensor]:  # image [H, W, D], alpha [H, W]
+    """Composite ``colors`` front to back (numba, hand-written backward)."""
     b = binning(proj, opacities, width, height)
     return _RasterFn.apply(proj.means2d, proj.conics, opacities, colors, b, width, height)

@@ -14,6 +14,7 @@ differ; gsplat ≥ 1.5 bins by an opacity-aware box too (1.4: 3σ box, which dro
 from __future__ import annotations
 
 import torch
+from torch import Tensor
 
 
 def available() -> bool:
@@ -21,16 +22,28 @@ def available() -> bool:
     if not torch.cuda.is_available():
         return False
     try:
-        import gsplat  # noqa: F401
+        import gsplat  # noqa: F401  (lazy: optional CUDA extension, brfgs[cuda]; absent on CPU machines)
     except Exception:
         return False
     return True
 
 
-def rasterize_cuda(means, quats, scales, opacities, features, viewmat, K, width, height,
-                   normals=None, near=0.01, far=1e10):
-    """Render with gsplat → (image [H,W,C], alpha [H,W], depth [H,W], normal [H,W,3]|None, meta)."""
-    from gsplat import rasterization
+def rasterize_cuda(
+    means: Tensor,  # [N, 3] m, world (CUDA)
+    quats: Tensor,  # [N, 4] (w, x, y, z)
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    features: Tensor,  # [N, C]
+    viewmat: Tensor,  # [4, 4] world -> camera (OpenCV axes)
+    K: Tensor,  # [3, 3] px
+    width: int,  # px
+    height: int,  # px
+    normals: Tensor | None = None,  # [N, 3] or None
+    near: float = 0.01,  # m
+    far: float = 1e10,  # m
+) -> tuple[Tensor, Tensor, Tensor, Tensor | None, dict]:  # image [H, W, C], alpha, depth [H, W], normal, meta
+    """Render with gsplat's ``rasterization`` (expected depth, normals as extra channels)."""
+    from gsplat import rasterization  # lazy: optional CUDA extension, brfgs[cuda]
 
     dev = means.device
     C = features.shape[1]

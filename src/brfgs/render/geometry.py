@@ -1,17 +1,26 @@
 """Geometry of Gaussians and pinhole cameras shared by the rasterizer, the reflectance head and
-the trainer: one copy of each formula."""
+the trainer: one copy of each formula.
+
+Conventions (as gsplat): quaternions (w, x, y, z); world-to-camera ``viewmat`` with OpenCV axes
+(+x right, +y down, +z forward); pinhole ``K`` in pixels with pixel i spanning [i, i + 1).
+"""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor
 
+__all__ = ["quat_to_rotmat", "project_pinhole"]
+
 
 def quat_to_rotmat(
     quats: Tensor,  # [..., 4] (w, x, y, z), need not be normalised
 ) -> Tensor:  # [..., 3, 3]
-    """Rotation matrices from quaternions. Column j is the world direction of the Gaussian's local
-    axis j (Σ = R S² Rᵀ), as in 3DGS/gsplat."""
+    """Rotation matrices from quaternions (normalised here, the norm clamped at 1e-12).
+
+    Column j is the world direction of the Gaussian's local axis j, so the covariance is
+    Σ = R S² Rᵀ (3DGS, Kerbl et al. 2023, eq. 6; gsplat).
+    """
     q = quats / torch.linalg.vector_norm(quats, dim=-1, keepdim=True).clamp_min(1e-12)  # [..., 4]
     w, x, y, z = q.unbind(-1)
     xx, yy, zz = x * x, y * y, z * z
@@ -22,7 +31,7 @@ def quat_to_rotmat(
         torch.stack([2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx)], -1),
         torch.stack([2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)], -1),
     ]
-    return torch.stack(rows, -2)
+    return torch.stack(rows, -2)  # [..., 3, 3]
 
 
 def project_pinhole(
@@ -30,8 +39,11 @@ def project_pinhole(
     viewmat: Tensor,  # [4, 4] world -> camera (OpenCV axes)
     K: Tensor,  # [3, 3] px
 ) -> tuple[Tensor, Tensor]:  # uv [N, 2] px, z [N] m
-    """Pixel coordinates (pixel i spans [i, i + 1)) and camera depth of world points; depth is
-    clamped at 1e-6 m in the division only, so points behind the camera have z <= 0."""
+    """Pixel coordinates and camera depth of world points.
+
+    uv = (f_x x/z + c_x, f_y y/z + c_y) with (x, y, z) = R p + t; z is clamped at 1e-6 m in the
+    division only, so points behind the camera keep z ≤ 0 (callers mask them).
+    """
     pc = points @ viewmat[:3, :3].T + viewmat[:3, 3]  # [N, 3]
     z = pc[:, 2]
     u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-6) + K[0, 2]

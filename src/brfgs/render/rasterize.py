@@ -5,9 +5,12 @@ from __future__ import annotations
 import os
 from typing import NamedTuple
 
+import numba
 import torch
+from torch import Tensor
 
 from brfgs.errors import UserError
+from brfgs.render import cpu_backend, cuda_backend, torch_backend
 from brfgs.render._common import FAR_PLANE, NEAR_PLANE
 
 BACKENDS = ("auto", "torch", "cpu", "cuda")
@@ -17,18 +20,17 @@ _threads_configured = False
 class RenderOutput(NamedTuple):
     """Rendered planes of one camera.
 
-    image [H, W, C]; alpha [H, W] (1 − final transmittance);
-    depth [H, W] expected depth in metres, Σ w_i z_i / Σ w_i (0 where alpha = 0), z along the
-    optical axis; normal [H, W, 3] Σ w_i n_i (not normalised, not divided by alpha) or None;
-    meta: dict with "means2d" [N, 2] (pixels; its .grad after backward is the screen-space
-    positional gradient), "radii" [N] int32 (px, 0 = not visible), "radii_xy" [N, 2],
-    "visible" [N] bool, "depth_accum" [H, W] (Σ w_i z_i), "depths" [N] camera z, "backend".
+    depth is the expected depth Σ w_i z_i / Σ w_i (0 where alpha = 0), z along the optical axis;
+    normal is Σ w_i n_i (not normalised, not divided by alpha). meta: "means2d" [N, 2] px (its
+    .grad after backward is the screen-space positional gradient), "radii" [N] int32 (px, 0 = not
+    visible), "radii_xy" [N, 2] px, "visible" [N] bool, "depth_accum" [H, W] (Σ w_i z_i, m),
+    "depths" [N] camera z (m), "conics" [N, 3] (cpu/torch), "backend".
     """
 
-    image: torch.Tensor
-    alpha: torch.Tensor
-    depth: torch.Tensor
-    normal: torch.Tensor | None
+    image: Tensor  # [H, W, C] (+ (1 − alpha)·background)
+    alpha: Tensor  # [H, W] 1 − final transmittance
+    depth: Tensor  # [H, W] m
+    normal: Tensor | None  # [H, W, 3] or None
     meta: dict
 
 
@@ -43,8 +45,6 @@ def configure_threads(n: int | None = None) -> int:
     1.2–3.4× faster in wall time at load average ~12 on 2 cores (BENCHMARKS). Returns ``n``.
     """
     global _threads_configured
-    import numba
-
     if n is None:
         env = os.environ.get("BRFGS_NUM_THREADS")
         n = int(env) if env else (os.cpu_count() or 1)
@@ -59,8 +59,6 @@ def _default_threads() -> None:
     """First use of the cpu backend without configure_threads: numba follows torch's count
     (or $BRFGS_NUM_THREADS); torch's own setting is left as the user made it."""
     global _threads_configured
-    import numba
-
     env = os.environ.get("BRFGS_NUM_THREADS")
     if env:
         configure_threads(int(env))
@@ -69,7 +67,10 @@ def _default_threads() -> None:
     _threads_configured = True
 
 
-def resolve_backend(backend: str, device: torch.device) -> str:
+def resolve_backend(
+    backend: str,  # "auto" | "torch" | "cpu" | "cuda"
+    device: torch.device,  # where the inputs live
+) -> str:  # "torch" | "cpu" | "cuda"
     """'auto' → 'cuda' when the inputs live on a CUDA device (gsplat needed), else 'cpu'."""
     if backend not in BACKENDS:
         raise UserError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}", field="backend")
@@ -79,15 +80,14 @@ def resolve_backend(backend: str, device: torch.device) -> str:
         else:
             return "cpu"
     if backend == "cuda":
-        from brfgs.render import cuda_backend
-
         if not cuda_backend.available():
             raise UserError("backend 'cuda' needs a CUDA GPU visible to torch and gsplat installed "
                             "(pip install 'brfgs[cuda]')", field="backend")
     return backend
 
 
-def _check(name, t, shape, dtype=None):
+def _check(name: str, t, shape: tuple, dtype: torch.dtype | None = None) -> None:
+    """UserError unless ``t`` is a tensor of ``shape`` (None: any size) and, if given, ``dtype``."""
     if not isinstance(t, torch.Tensor):
         raise UserError(f"{name} must be a torch tensor", field=name)
     if t.dim() != len(shape) or any(s is not None and t.shape[i] != s for i, s in enumerate(shape)):
@@ -97,74 +97,109 @@ def _check(name, t, shape, dtype=None):
         raise UserError(f"{name} has dtype {t.dtype}, expected {dtype} like means", field=name)
 
 
-def rasterize(means, quats, scales, opacities, features, viewmat, K, width, height, backend="auto",
-              normals=None, background=None, near_plane=NEAR_PLANE, far_plane=FAR_PLANE) -> RenderOutput:
-    """Render N Gaussians into one camera with 3DGS semantics (see ``brfgs.render``).
+class _Splats(NamedTuple):
+    """The per-Gaussian inputs of one render (see :func:`rasterize`)."""
 
-    means [N,3] (m, world ENU), quats [N,4] (wxyz, any norm), scales [N,3] (m, > 0),
-    opacities [N] (0..1), features [N,C] (any C), viewmat [4,4] world-to-camera (OpenCV axes),
-    K [3,3] pinhole (pixel centres at +0.5), width/height in pixels, normals [N,3] or None,
-    background [C] or None (added as (1 − alpha)·background).
-    Gradients flow to means, quats, scales, opacities, features and normals.
-    """
+    means: Tensor  # [N, 3] m
+    quats: Tensor  # [N, 4]
+    scales: Tensor  # [N, 3] m
+    opacities: Tensor  # [N]
+    features: Tensor  # [N, C]
+    normals: Tensor | None  # [N, 3] or None
+
+
+def _check_inputs(g: _Splats, viewmat, K, background) -> None:
+    """UserError for a wrong type, shape or dtype of any input of :func:`rasterize`."""
+    means = g.means
     N = means.shape[0] if isinstance(means, torch.Tensor) and means.dim() == 2 else None
     _check("means", means, (None, 3))
     dt = means.dtype
     if dt not in (torch.float32, torch.float64):
         raise UserError(f"means has dtype {dt}, expected float32 or float64", field="means")
-    _check("quats", quats, (N, 4), dt)
-    _check("scales", scales, (N, 3), dt)
-    _check("opacities", opacities, (N,), dt)
-    _check("features", features, (N, None), dt)
+    _check("quats", g.quats, (N, 4), dt)
+    _check("scales", g.scales, (N, 3), dt)
+    _check("opacities", g.opacities, (N,), dt)
+    _check("features", g.features, (N, None), dt)
     _check("viewmat", viewmat, (4, 4))
     _check("K", K, (3, 3))
-    if normals is not None:
-        _check("normals", normals, (N, 3), dt)
-    C = features.shape[1]
+    if g.normals is not None:
+        _check("normals", g.normals, (N, 3), dt)
     if background is not None:
-        _check("background", background, (C,), dt)
+        _check("background", background, (g.features.shape[1],), dt)
+
+
+def rasterize(
+    means: Tensor,  # [N, 3] m, world (ENU)
+    quats: Tensor,  # [N, 4] (w, x, y, z), any norm
+    scales: Tensor,  # [N, 3] m, > 0
+    opacities: Tensor,  # [N] in (0, 1)
+    features: Tensor,  # [N, C] any C
+    viewmat: Tensor,  # [4, 4] world -> camera, OpenCV axes
+    K: Tensor,  # [3, 3] pinhole, px (pixel centres at +0.5)
+    width: int,  # px
+    height: int,  # px
+    backend: str = "auto",  # "auto" | "torch" | "cpu" | "cuda"
+    normals: Tensor | None = None,  # [N, 3] composited like features, or None
+    background: Tensor | None = None,  # [C] added as (1 − alpha)·background, or None
+) -> RenderOutput:
+    """Render N Gaussians into one camera with 3DGS semantics (see ``brfgs.render``).
+
+    EWA splatting (Kerbl et al. 2023, eqs 5–6) of the Gaussians G_k of the paper's eq. 10, whose
+    ``features`` (e.g. latent spectra z_k, eq. 12) are alpha-composited front to back in depth
+    order between the near and far planes ``render._common.NEAR_PLANE`` / ``FAR_PLANE``
+    (0.01 m, 1e10 m). All tensors share the dtype of ``means`` (float32 or float64); outputs are
+    described in :class:`RenderOutput`. Gradients flow to means, quats, scales, opacities,
+    features and normals.
+    """
+    g = _Splats(means, quats, scales, opacities, features, normals)
+    _check_inputs(g, viewmat, K, background)
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
         raise UserError(f"image size {width}x{height} must be positive", field="width/height")
     be = resolve_backend(backend, means.device)
-
     if be == "cuda":
-        from brfgs.render.cuda_backend import rasterize_cuda
-
-        if means.device.type != "cuda":  # explicit backend="cuda" with CPU tensors: move (differentiably)
-            dev = torch.device("cuda")
-            means, quats, scales, opacities, features = (t.to(dev) for t in (means, quats, scales, opacities, features))
-            normals = None if normals is None else normals.to(dev)
-            background = None if background is None else background.to(dev)
-
-        image, alpha, depth, normal, meta = rasterize_cuda(
-            means, quats, scales, opacities, features, viewmat, K, width, height,
-            normals=normals, near=near_plane, far=far_plane)
-        if background is not None:
-            image = image + (1 - alpha)[..., None] * background
-        return RenderOutput(image, alpha, depth, normal, meta)
-
+        return _rasterize_cuda(g, viewmat, K, width, height, background)
     if means.device.type != "cpu":
         raise UserError(f"backend {be!r} needs CPU tensors, got device {means.device}", field="backend")
-    if be == "cpu":
-        from brfgs.render import cpu_backend as mod
+    return _rasterize_cpu(be, g, viewmat, K, width, height, background)
 
+
+def _rasterize_cuda(g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,
+                    background: Tensor | None) -> RenderOutput:
+    """gsplat on the GPU; CPU inputs (an explicit backend="cuda") are moved there differentiably."""
+    if g.means.device.type != "cuda":
+        dev = torch.device("cuda")
+        g = _Splats(*(None if t is None else t.to(dev) for t in g))
+        background = None if background is None else background.to(dev)
+    image, alpha, depth, normal, meta = cuda_backend.rasterize_cuda(
+        g.means, g.quats, g.scales, g.opacities, g.features, viewmat, K, width, height,
+        normals=g.normals, near=NEAR_PLANE, far=FAR_PLANE)
+    if background is not None:
+        image = image + (1 - alpha)[..., None] * background
+    return RenderOutput(image, alpha, depth, normal, meta)
+
+
+def _rasterize_cpu(be: str, g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,
+                   background: Tensor | None) -> RenderOutput:
+    """The ``cpu`` (numba) or ``torch`` backend: project, composite features, depth and normals."""
+    if be == "cpu":
+        mod = cpu_backend
         if not _threads_configured:
             _default_threads()
     else:
-        from brfgs.render import torch_backend as mod
-
+        mod = torch_backend
+    C = g.features.shape[1]
     viewmat = viewmat.detach().to(torch.float64)
     K = K.detach().to(torch.float64)
-    proj = mod.project(means, quats, scales, opacities, viewmat, K, width, height, near_plane, far_plane)
-    parts = [features, proj.depths[:, None]]
-    if normals is not None:
-        parts.append(normals)
+    proj = mod.project(g.means, g.quats, g.scales, g.opacities, viewmat, K, width, height, NEAR_PLANE, FAR_PLANE)
+    parts = [g.features, proj.depths[:, None]]
+    if g.normals is not None:
+        parts.append(g.normals)
     colors = torch.cat(parts, 1)                                   # [N, C + 1 (+3)]
-    planes, alpha = mod.raster(proj, opacities, colors, width, height)
+    planes, alpha = mod.raster(proj, g.opacities, colors, width, height)
     image = planes[..., :C]
     depth_accum = planes[..., C]
-    normal = planes[..., C + 1:C + 4] if normals is not None else None
+    normal = planes[..., C + 1:C + 4] if g.normals is not None else None
     if background is not None:
         image = image + (1 - alpha)[..., None] * background
     depth = torch.where(alpha > 0, depth_accum / alpha.clamp_min(1e-10), torch.zeros_like(alpha))

@@ -24,8 +24,8 @@ def _camera(width, height, fov_deg, zen_deg, az_deg, dist_m):
 
 
 def ground_scene(n: int, width: int, height: int, channels: int, seed: int = 0,
-                 dtype=torch.float32, px_size: float = 1.0, view_zenith_deg: float = 20.0,
-                 view_azimuth_deg: float = 30.0, fov_deg: float = 35.0, distance_m: float = 30.0):
+                 dtype: torch.dtype = torch.float32, px_size: float = 1.0, view_zenith_deg: float = 20.0,
+                 view_azimuth_deg: float = 30.0, fov_deg: float = 35.0, distance_m: float = 30.0) -> dict:
     """A landscape-like scene of ``n`` Gaussians seen by one camera.
 
     Returns dict with means [n,3], quats [n,4], scales [n,3], opacities [n], features [n,C],
@@ -57,9 +57,9 @@ def ground_scene(n: int, width: int, height: int, channels: int, seed: int = 0,
                 width=width, height=height)
 
 
-def random_scene(n: int, width: int, height: int, channels: int, seed: int = 0, dtype=torch.float32,
+def random_scene(n: int, width: int, height: int, channels: int, seed: int = 0, dtype: torch.dtype = torch.float32,
                  px_size: float = 2.5, behind_fraction: float = 0.1, offscreen: float = 0.25,
-                 max_opacity: float = 0.95):
+                 max_opacity: float = 0.95) -> dict:
     """Unstructured Gaussians in front of a camera at the origin looking along +z (OpenCV).
 
     A fraction ``behind_fraction`` lies behind or on the near plane; the field is widened by

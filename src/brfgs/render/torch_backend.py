@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+from torch import Tensor
 
 from brfgs.render._common import (
     ALPHA_MAX, ALPHA_MIN, EPS2D, EXTENT_ABS, EXTENT_REL, T_MIN, TILE, fov_limits, n_tiles,
@@ -29,8 +30,15 @@ class Projection:
     visible: torch.Tensor   # [N] bool
 
 
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (wxyz, normalised here)."""
+def _rotmat_unshared(quats: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (wxyz, normalised here).
+
+    The same values as :func:`brfgs.render.geometry.quat_to_rotmat` (bit for bit), but every entry
+    forms its own products, so autograd sums the quaternion gradient in another order (it differs
+    from the shared formula's in the last bits). Kept so that ``backend="torch"`` (the ``tiny``
+    training preset) reproduces earlier runs bit for bit; replace it with the shared formula when
+    that may change.
+    """
     q = quats / quats.norm(dim=-1, keepdim=True)
     w, x, y, z = q.unbind(-1)
     return torch.stack([
@@ -40,8 +48,19 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     ], -1).reshape(q.shape[:-1] + (3, 3))
 
 
-def project(means, quats, scales, opacities, viewmat, K, width, height, near, far) -> Projection:
-    """EWA projection of 3D Gaussians [N] to the image (3DGS eqs. 5–6, gsplat conventions)."""
+def project(
+    means: Tensor,  # [N, 3] m, world
+    quats: Tensor,  # [N, 4] (w, x, y, z), any norm
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    viewmat: Tensor,  # [4, 4] float64 world -> camera (OpenCV axes)
+    K: Tensor,  # [3, 3] float64 px
+    width: int,  # px
+    height: int,  # px
+    near: float,  # m, near plane
+    far: float,  # m, far plane
+) -> Projection:  # per-Gaussian screen-space quantities, see Projection
+    """EWA projection of 3D Gaussians to the image (3DGS, Kerbl et al. 2023, eqs 5–6; gsplat conventions)."""
     dtype = means.dtype
     Rw = viewmat[:3, :3].to(dtype)  # [3, 3]
     tw = viewmat[:3, 3].to(dtype)   # [3]
@@ -57,7 +76,7 @@ def project(means, quats, scales, opacities, viewmat, K, width, height, near, fa
     zero = torch.zeros_like(zs)
     J = torch.stack([fx / zs, zero, -fx * tx / (zs * zs),
                      zero, fy / zs, -fy * ty / (zs * zs)], -1).reshape(-1, 2, 3)  # [N, 2, 3]
-    R = quat_to_rotmat(quats)                   # [N, 3, 3]
+    R = _rotmat_unshared(quats)                 # [N, 3, 3]
     M = R * scales[:, None, :]                  # [N, 3, 3] = R S
     cov3 = M @ M.transpose(1, 2)                # [N, 3, 3] world
     covc = Rw @ cov3 @ Rw.T                     # [N, 3, 3] camera
@@ -93,8 +112,12 @@ def project(means, quats, scales, opacities, viewmat, K, width, height, near, fa
     return Projection(means2d, conics, z, radii_xy.to(dtype), rect, ok)
 
 
-def bin_tiles(proj: Projection, width: int, height: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tile lists: (tile_start [T+1], gaussian ids [E]) sorted by tile, then depth (stable)."""
+def bin_tiles(
+    proj: Projection,
+    width: int,  # px
+    height: int,  # px
+) -> tuple[Tensor, Tensor]:  # tile_start [T + 1] int64, Gaussian ids [E] int64
+    """Tile lists sorted by tile, then depth (stable): tile t holds ids[tile_start[t]:tile_start[t + 1]]."""
     ntx, nty = n_tiles(width, height)
     vis = torch.nonzero(proj.visible).squeeze(1)                     # [V]
     order = vis[torch.sort(proj.depths.detach()[vis], stable=True).indices]  # [V] front to back
@@ -116,8 +139,14 @@ def bin_tiles(proj: Projection, width: int, height: int) -> tuple[torch.Tensor, 
     return start, gid[srt]
 
 
-def raster(proj: Projection, opacities, colors, width: int, height: int):
-    """Composite ``colors`` [N, D] front to back → (image [H, W, D], alpha [H, W])."""
+def raster(
+    proj: Projection,
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D] any channels
+    width: int,  # px
+    height: int,  # px
+) -> tuple[Tensor, Tensor]:  # image [H, W, D], alpha [H, W]
+    """Composite ``colors`` front to back per 16×16 tile (α-blending of 3DGS, cumprod transmittance)."""
     ntx, nty = n_tiles(width, height)
     start, gids = bin_tiles(proj, width, height)
     dtype = colors.dtype

@@ -22,142 +22,27 @@ testsite its CIR PSNR against a 2048-spp render is 36.7 dB, where 32 independent
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
+from tqdm import tqdm
 
-from brfgs.data.cameras import Intrinsics, paper_view_angles, pose_from_view_angles
+from brfgs.data.angles import direction_from_angles_deg
+from brfgs.data.cameras import paper_view_angles, pose_from_view_angles
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
-from brfgs.sim import spectra as sp
-from brfgs.sim.geometry import SCENES, build_geometry
+from brfgs.sim.config import N_DARK_DEFAULT, SAMPLERS, VALID_VIEWS, SimConfig  # noqa: F401  (re-exported)
+from brfgs.sim.geometry import build_geometry
 from brfgs.sim.materials import MATERIAL_IDS, MATERIAL_NAMES
+from brfgs.sim.render import BandTripletRenderer
 
-VALID_VIEWS = (1, 13, 25, 37, 49)
-SAMPLERS = ("ldsampler", "independent")
-N_DARK_DEFAULT = 20
 # what simulate() writes (and what --overwrite may remove); other files in OUT are left alone
 OUTPUT_ENTRIES = ("transforms.json", "images", "calibration", "truth", "preview_cir_nadir.png",
                   "preview_cir_oblique.png", ".simulate_progress.json", ".simulate_progress.json.tmp")
-
-
-@dataclass
-class SimConfig:
-    """Options of a simulated acquisition (the CLI exposes each one).
-
-    scene: "testsite" | "forest" | "flat"; size: image width = height (px); bands: number of
-    bands over [wavelength_min_nm, wavelength_max_nm]; views: 1, 13, 25, 37 or 49; spp: samples
-    per pixel (a power of 4 for the default low-discrepancy sampler, a power of two for
-    "independent"); sampler: "ldsampler" (Mitsuba's low-discrepancy sampler, default) or
-    "independent" (plain random samples; scenes written before the sampler option); sun angles in degrees (conventions: azimuth clockwise from north,
-    toward the sun); seed: all random choices (geometry, textures, Monte Carlo, noise);
-    distance_m: camera distance from the scene centre; fov_deg: horizontal field of view;
-    fwhm_nm: band width; noise_scale: multiplies σ_b (0 = noise-free observations);
-    shot_coeff: signal-dependent noise k (σ² = k²·ρ); n_dark: dark frames;
-    max_depth: longest light path; texture_px: resolution of the ground textures (0 = from size).
-    """
-
-    scene: str = "testsite"
-    size: int = 128
-    bands: int = 164
-    views: int = 49
-    spp: int = 64
-    sun_zenith_deg: float = 38.0
-    sun_azimuth_deg: float = 150.0
-    seed: int = 0
-    distance_m: float = 100.0
-    fov_deg: float = 35.0
-    wavelength_min_nm: float = 350.0
-    wavelength_max_nm: float = 1000.0
-    fwhm_nm: float = 4.0
-    noise_scale: float = 1.0
-    shot_coeff: float = 0.01
-    n_dark: int = N_DARK_DEFAULT
-    max_depth: int = 10
-    texture_px: int = 0
-    sampler: str = "ldsampler"
-
-    def texture_resolution(self) -> int:
-        """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
-        of two ≥ 4·size (texels at most ~1/4 of a nadir pixel), between 64 and 2048."""
-        if int(self.texture_px) > 0:
-            return int(self.texture_px)
-        return int(min(2048, max(64, 2 ** math.ceil(math.log2(4 * int(self.size))))))
-
-    @classmethod
-    def tiny(cls, scene: str = "testsite", **overrides) -> "SimConfig":
-        """Small preset for tests and quick looks: 32², 16 bands, 13 views, 16 spp, 4 dark frames."""
-        base = dict(scene=scene, size=32, bands=16, views=13, spp=16, n_dark=4)
-        base.update(overrides)
-        return cls(**base)
-
-    @classmethod
-    def small(cls, scene: str = "testsite", **overrides) -> "SimConfig":
-        """Small preset with enough pixels for SIFT/SfM: 64², 16 bands, 13 views, 16 spp."""
-        base = dict(scene=scene, size=64, bands=16, views=13, spp=16, n_dark=8)
-        base.update(overrides)
-        return cls(**base)
-
-    def validate(self) -> None:
-        """Raise UserError for impossible options."""
-        def req(cond, msg, field):
-            if not cond:
-                raise UserError(msg, field=field)
-        req(self.scene in SCENES, f"unknown scene {self.scene!r}; choose one of {', '.join(SCENES)}", "scene")
-        req(int(self.size) >= 8, f"size must be at least 8 pixels, got {self.size}", "size")
-        req(int(self.bands) >= 1, f"bands must be at least 1, got {self.bands}", "bands")
-        req(int(self.views) in VALID_VIEWS, f"views must be one of {VALID_VIEWS}, got {self.views}", "views")
-        spp = int(self.spp)
-        req(self.sampler in SAMPLERS, f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}",
-            "sampler")
-        req(spp >= 1 and spp & (spp - 1) == 0, f"spp must be a power of two (1, 2, 4, ...), got {self.spp}", "spp")
-        # Mitsuba's ldsampler needs a square power of two (it would silently round up otherwise)
-        req(self.sampler != "ldsampler" or (spp.bit_length() - 1) % 2 == 0,
-            f"spp must be a power of 4 (1, 4, 16, 64, 256, ...) for the ldsampler sampler, got {self.spp}", "spp")
-        req(0.0 <= float(self.sun_zenith_deg) <= 89.0,
-            f"sun zenith must be within [0, 89] degrees, got {self.sun_zenith_deg}", "sun_zenith_deg")
-        req(math.isfinite(float(self.sun_azimuth_deg)), "sun azimuth must be a finite number", "sun_azimuth_deg")
-        req(float(self.distance_m) > 20.0, f"distance must exceed 20 m, got {self.distance_m}", "distance_m")
-        req(1.0 <= float(self.fov_deg) <= 120.0, f"field of view must be in [1, 120] degrees, got {self.fov_deg}",
-            "fov_deg")
-        req(300.0 <= self.wavelength_min_nm < self.wavelength_max_nm <= 1000.0,
-            "wavelength range must lie within 350-1000 nm (min < max)", "wavelength_min_nm")
-        req(self.wavelength_min_nm >= 350.0, "material spectra start at 350 nm", "wavelength_min_nm")
-        req(self.fwhm_nm > 0, "fwhm must be positive", "fwhm_nm")
-        req(self.noise_scale >= 0 and self.shot_coeff >= 0, "noise parameters must be non-negative", "noise_scale")
-        req(int(self.n_dark) >= 0, "n_dark must be non-negative", "n_dark")
-        req(int(self.max_depth) >= 1, "max_depth must be at least 1", "max_depth")
-        req(int(self.texture_px) == 0 or int(self.texture_px) >= 16, "texture_px must be 0 (auto) or >= 16",
-            "texture_px")
-
-    # derived quantities
-    def wavelengths_nm(self) -> np.ndarray:
-        return sp.default_wavelengths_nm(int(self.bands), self.wavelength_min_nm, self.wavelength_max_nm)
-
-    def fwhm_array_nm(self) -> np.ndarray:
-        return np.full(int(self.bands), float(self.fwhm_nm))
-
-    def intrinsics(self, size: int | None = None) -> Intrinsics:
-        n = int(self.size if size is None else size)
-        return Intrinsics.from_fov(float(self.fov_deg), n, n)
-
-    def sigma_b(self) -> np.ndarray:
-        """Configured per-band dark noise σ_b [B] (reflectance units)."""
-        return sp.dark_sigma(self.wavelengths_nm(), self.noise_scale)
-
-    def to_json(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_json(cls, d: dict) -> "SimConfig":
-        names = {f.name for f in fields(cls)}
-        kw = {k: v for k, v in d.items() if k in names}
-        kw.setdefault("sampler", "independent")  # scenes written before the sampler option
-        return cls(**kw)
 
 
 def view_name(index: int, zenith_deg: float, azimuth_deg: float) -> str:
@@ -173,8 +58,7 @@ def render_seed(seed: int, zenith_deg: float, azimuth_deg: float) -> int:
 
 
 def _make_renderer(cfg: SimConfig, bands=None, spp: int | None = None):
-    from brfgs.sim.render import BandTripletRenderer
-
+    """The scene's geometry and its Mitsuba renderer (all bands, or ``bands``)."""
     geom = build_geometry(cfg.scene, int(cfg.seed), cfg.texture_resolution())
     wl = cfg.wavelengths_nm()
     fw = cfg.fwhm_array_nm()
@@ -212,8 +96,6 @@ def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: 
     refl, depth, mats, c2ws = [], [], [], []
     it = views
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(views, desc="render views", unit="view")
     for z, a in it:
         c2w = pose_from_view_angles(z, a, dist, target_m)
@@ -248,8 +130,6 @@ def observe(clean: np.ndarray, sigma_b: np.ndarray, shot_coeff: float, rng: np.r
 
 def _cir_png(path: Path, cube: np.ndarray, wavelengths_nm: np.ndarray) -> None:
     """Colour-infrared preview: bands nearest 850/650/550 nm as R/G/B, each over its 99th percentile."""
-    from PIL import Image
-
     idx = [int(np.argmin(np.abs(wavelengths_nm - w))) for w in (850.0, 650.0, 550.0)]
     rgb = np.empty(cube.shape[:2] + (3,), np.float64)
     for c, i in enumerate(idx):
@@ -320,20 +200,37 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
     t0 = time.perf_counter()
     geom, rend = _make_renderer(cfg)
     t_setup = time.perf_counter() - t0
+    frames, preview_of, timings = _acquire_views(out, cfg, rend, done, progress)
+    dark_paths = _write_dark_frames(out, cfg)
+    _write_truth_tables(out, cfg, geom, rend)
+    wl = cfg.wavelengths_nm()
+    # previews (observed cubes)
+    nadir = next(n for n in preview_of if n.startswith("v00_"))
+    _cir_png(out / "preview_cir_nadir.png", preview_of[nadir], wl)
+    obl = [n for n in preview_of if n != nadir]
+    if obl:
+        _cir_png(out / "preview_cir_oblique.png", preview_of[obl[0]], wl)
+    _json_dump(out / "transforms.json", _transforms(cfg, frames, dark_paths))
+    (out / PROGRESS_FILE).unlink(missing_ok=True)
+    simulate.last_timing = {"setup_s": t_setup, "view_s": timings, "total_s": time.perf_counter() - t0,
+                            "n_triangles": geom.n_triangles()}
+    return out
 
+
+def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: bool):
+    """Render, observe and write every view not in ``done`` (appended to as views finish, with the
+    progress file). Returns (frames of transforms.json, {name: observed cube} of the preview views,
+    seconds per rendered view)."""
     wl = cfg.wavelengths_nm()
     fwhm = cfg.fwhm_array_nm()
     sigma = cfg.sigma_b()
     intr = cfg.intrinsics()
     angles = paper_view_angles(int(cfg.views))
-
     frames = []
     preview_of: dict[str, np.ndarray] = {}
     timings = []
     it = list(enumerate(angles))
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(it, desc=f"simulate {cfg.scene}", unit="view")
     for i, (z, a) in it:
         tv = time.perf_counter()
@@ -363,8 +260,15 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
         done.append(name)
         _write_progress(out, cfg, done)
         timings.append(time.perf_counter() - tv)
+    return frames, preview_of, timings
 
-    # dark (black-cover) frames
+
+def _write_dark_frames(out: Path, cfg: SimConfig) -> list[str]:
+    """Dark (black-cover) frames N(0, σ_b²); returns their paths relative to ``out``."""
+    wl = cfg.wavelengths_nm()
+    fwhm = cfg.fwhm_array_nm()
+    sigma = cfg.sigma_b()
+    intr = cfg.intrinsics()
     dark_paths = []
     for k in range(int(cfg.n_dark)):
         rng = np.random.default_rng([int(cfg.seed), 11, k])
@@ -372,8 +276,11 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
         rel = f"calibration/dark_{k:02d}.hdr"
         write_envi(out / rel, dark, wl, fwhm)
         dark_paths.append(rel)
+    return dark_paths
 
-    # truth tables
+
+def _material_table(geom, rend) -> dict:
+    """truth/materials.json "materials": BSDF, band spectra and texture model of each material used."""
     mats_used = sorted({MATERIAL_IDS[p.material] for p in geom.parts})
     table = {}
     for mid in mats_used:
@@ -399,11 +306,18 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
             entry["endmember_2"] = [round(float(v), 6) for v in s["end2"]]
             entry["texture"] = "reflectance = brightness(x,y) * (mix(x,y) * endmember_1 + (1 - mix) * endmember_2)"
         table[str(mid)] = entry
+    return table
+
+
+def _write_truth_tables(out: Path, cfg: SimConfig, geom, rend) -> None:
+    """truth/materials.json, truth/sigma.json and truth/scene.json."""
+    wl = cfg.wavelengths_nm()
+    sigma = cfg.sigma_b()
     _json_dump(out / "truth" / "materials.json", {
         "wavelengths_nm": [float(w) for w in wl],
         "ids": "material id maps (truth/materials/<name>.npy, int16): id of the surface hit by the ray through "
                "the pixel centre; 0 = nothing hit",
-        "materials": table})
+        "materials": _material_table(geom, rend)})
     _json_dump(out / "truth" / "sigma.json", {
         "wavelengths_nm": [float(w) for w in wl],
         "dark_sigma": [float(v) for v in sigma],
@@ -412,7 +326,7 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
                  "dark frames = N(0, dark_sigma^2)"})
     _json_dump(out / "truth" / "scene.json", {
         "config": cfg.to_json(),
-        "renderer": {"name": "mitsuba", "version": _mitsuba_version(), "variant": rend.mi.variant(),
+        "renderer": {"name": "mitsuba", "version": str(rend.mi.__version__), "variant": rend.mi.variant(),
                      "integrator": "path", "spp": int(cfg.spp), "sampler": cfg.sampler, "max_depth": int(cfg.max_depth),
                      "reconstruction_filter": "box", "bands_per_pass": 3},
         "illumination": {
@@ -427,29 +341,21 @@ def simulate(out_dir: str | Path, cfg: SimConfig, overwrite: bool = False, progr
         "depth": "truth/depth/<name>.npy: float32 [H, W], metres along the optical axis through the pixel "
                  "centre, NaN where nothing is hit"})
 
-    # previews (observed cubes)
-    nadir = next(n for n in preview_of if n.startswith("v00_"))
-    _cir_png(out / "preview_cir_nadir.png", preview_of[nadir], wl)
-    obl = [n for n in preview_of if n != nadir]
-    if obl:
-        _cir_png(out / "preview_cir_oblique.png", preview_of[obl[0]], wl)
 
-    transforms = {
+def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> dict:
+    """Content of transforms.json (conventions.md)."""
+    intr = cfg.intrinsics()
+    return {
         "camera_model": "PINHOLE",
         "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
-        "wavelengths_nm": [float(w) for w in wl],
-        "fwhm_nm": [float(w) for w in fwhm],
+        "wavelengths_nm": [float(w) for w in cfg.wavelengths_nm()],
+        "fwhm_nm": [float(w) for w in cfg.fwhm_array_nm()],
         "sun_zenith_deg": float(cfg.sun_zenith_deg),
         "sun_azimuth_deg": float(cfg.sun_azimuth_deg),
         "dark_frames": dark_paths,
         "simulator": {"scene": cfg.scene, "seed": int(cfg.seed), "truth": "truth/"},
         "frames": frames,
     }
-    _json_dump(out / "transforms.json", transforms)
-    (out / PROGRESS_FILE).unlink(missing_ok=True)
-    simulate.last_timing = {"setup_s": t_setup, "view_s": timings, "total_s": time.perf_counter() - t0,
-                            "n_triangles": geom.n_triangles()}
-    return out
 
 
 simulate.last_timing = None
@@ -457,15 +363,7 @@ simulate.last_timing = None
 
 def _is_preview_oblique(z: float, a: float, angles, cfg: SimConfig) -> bool:
     """True for the view nearest the sun's specular direction (θ_s, φ_s + 180°) — it shows the glint."""
-    from brfgs.data.angles import direction_from_angles_deg
-
     spec = direction_from_angles_deg(cfg.sun_zenith_deg, cfg.sun_azimuth_deg + 180.0)
     best = max((v for v in angles if v[0] > 0), key=lambda v: float(direction_from_angles_deg(*v) @ spec),
                default=None)
     return best is not None and (z, a) == best
-
-
-def _mitsuba_version() -> str:
-    import mitsuba as mi
-
-    return str(mi.__version__)

@@ -26,7 +26,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+
+from brfgs.sim.meshes import (box, cylinder, dome, ellipse_disk, facets, fbm, grid_mesh, merge,  # noqa: F401
+                              points_in_cone, points_in_ellipsoid, random_unit)
 
 SCENES = ("testsite", "forest", "flat")
 
@@ -71,157 +73,6 @@ class SceneGeometry:
 
     def n_triangles(self) -> int:
         return int(sum(len(p.faces) for p in self.parts))
-
-
-# ----------------------------------------------------------------------------------------
-# noise and primitive builders
-
-
-def fbm(rng: np.random.Generator, n: int, scales_px: tuple[float, ...], weights: tuple[float, ...],
-        wrap: bool = True) -> np.ndarray:
-    """Fractal noise [n, n], zero mean, unit std: a weighted sum of Gaussian-filtered white noise.
-
-    Filtering is done in the Fourier domain, so the noise is periodic (tileable) for any ``wrap``.
-    """
-    out = np.zeros((n, n))
-    for s, w in zip(scales_px, weights):
-        spec = np.fft.rfft2(rng.standard_normal((n, n)))
-        layer = np.fft.irfft2(ndimage.fourier_gaussian(spec, s, n=n), s=(n, n))
-        out += w * layer / (layer.std() + 1e-12)
-    out -= out.mean()
-    return out / (out.std() + 1e-12)
-
-
-def grid_mesh(x0: float, x1: float, y0: float, y1: float, nx: int, ny: int):
-    """Regular grid: vertices [(ny+1)(nx+1), 2] (x, y) and faces [2·nx·ny, 3] counter-clockwise seen from +z."""
-    xs = np.linspace(x0, x1, nx + 1)
-    ys = np.linspace(y0, y1, ny + 1)
-    X, Y = np.meshgrid(xs, ys)
-    idx = np.arange((ny + 1) * (nx + 1)).reshape(ny + 1, nx + 1)
-    a = idx[:-1, :-1].ravel()
-    b = idx[:-1, 1:].ravel()
-    c = idx[1:, 1:].ravel()
-    d = idx[1:, :-1].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return np.stack([X.ravel(), Y.ravel()], 1), faces
-
-
-def random_unit(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Uniform random unit vectors [n, 3]."""
-    v = rng.standard_normal((n, 3))
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def facets(rng: np.random.Generator, centres: np.ndarray, size_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Equilateral triangles of side ``size_m`` at ``centres`` [n, 3] with uniformly random normals
-    (spherical leaf-angle distribution). Returns vertices [3n, 3], faces [n, 3]."""
-    n = len(centres)
-    nrm = random_unit(rng, n)
-    a = np.cross(nrm, random_unit(rng, n))
-    a /= np.linalg.norm(a, axis=1, keepdims=True) + 1e-12
-    b = np.cross(nrm, a)
-    r = size_m / np.sqrt(3.0)  # circumradius
-    v = np.stack([centres + r * a,
-                  centres + r * (-0.5 * a + 0.8660254 * b),
-                  centres + r * (-0.5 * a - 0.8660254 * b)], 1).reshape(-1, 3)
-    return v, np.arange(3 * n).reshape(n, 3)
-
-
-def points_in_ellipsoid(rng, n, centre, radii) -> np.ndarray:
-    """n uniform points [n, 3] inside an axis-aligned ellipsoid."""
-    d = random_unit(rng, n) * rng.random((n, 1)) ** (1.0 / 3.0)
-    return np.asarray(centre) + d * np.asarray(radii)
-
-
-def points_in_cone(rng, n, base_centre, radius, height) -> np.ndarray:
-    """n uniform points [n, 3] inside an upright cone (apex at base_centre + height·z)."""
-    # height fraction from the base with density ∝ (1 − h)² (cross-section area)
-    h = 1.0 - rng.random(n) ** (1.0 / 3.0)
-    r = radius * (1.0 - h) * np.sqrt(rng.random(n))
-    phi = rng.random(n) * 2 * np.pi
-    return np.asarray(base_centre) + np.stack([r * np.sin(phi), r * np.cos(phi), h * height], 1)
-
-
-def box(centre, size, yaw_deg: float = 0.0, bottom: bool = False):
-    """Box mesh with outward normals: centre (x, y, z_bottom), size (sx, sy, sz). Returns (V [8,3], F [10|12,3])."""
-    sx, sy, sz = (0.5 * size[0], 0.5 * size[1], size[2])
-    corners = np.array([[-sx, -sy, 0], [sx, -sy, 0], [sx, sy, 0], [-sx, sy, 0],
-                        [-sx, -sy, sz], [sx, -sy, sz], [sx, sy, sz], [-sx, sy, sz]], float)
-    t = np.deg2rad(yaw_deg)
-    R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
-    v = corners @ R.T + np.asarray(centre, float)
-    f = [[4, 5, 6], [4, 6, 7],          # top
-         [0, 1, 5], [0, 5, 4],          # -y side
-         [1, 2, 6], [1, 6, 5],          # +x
-         [2, 3, 7], [2, 7, 6],          # +y
-         [3, 0, 4], [3, 4, 7]]          # -x
-    if bottom:
-        f += [[0, 2, 1], [0, 3, 2]]
-    return v, np.array(f)
-
-
-def cylinder(base, radius, height, n_seg: int = 8):
-    """Open vertical cylinder (side only), outward normals. Returns (V, F)."""
-    phi = np.linspace(0, 2 * np.pi, n_seg, endpoint=False)
-    ring = np.stack([radius * np.cos(phi), radius * np.sin(phi), np.zeros(n_seg)], 1)
-    v = np.concatenate([ring, ring + [0, 0, height]]) + np.asarray(base, float)
-    i = np.arange(n_seg)
-    j = (i + 1) % n_seg
-    f = np.concatenate([np.stack([i, j, j + n_seg], 1), np.stack([i, j + n_seg, i + n_seg], 1)])
-    return v, f
-
-
-def dome(rng, centre, radius, height, bump_m: float = 0.08, n_lat: int = 10, n_lon: int = 20):
-    """Bumpy upper half-ellipsoid (haystack) on the ground at ``centre``; outward normals. Returns (V, F)."""
-    th = np.linspace(0, np.pi / 2, n_lat + 1)[1:]  # from the top ring down to the equator
-    ph = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    r = 1.0 + bump_m / radius * rng.standard_normal(T.shape)
-    pts = np.stack([radius * r * np.sin(T) * np.cos(P), radius * r * np.sin(T) * np.sin(P),
-                    height * np.cos(T) * r], -1).reshape(-1, 3)
-    top = np.array([[0.0, 0.0, height]])
-    v = np.concatenate([top, pts]) + np.asarray(centre, float)
-    faces = []
-    for k in range(n_lon):  # cap
-        faces.append([0, 1 + k, 1 + (k + 1) % n_lon])
-    for i in range(n_lat - 1):
-        for k in range(n_lon):
-            a = 1 + i * n_lon + k
-            b = 1 + i * n_lon + (k + 1) % n_lon
-            c = 1 + (i + 1) * n_lon + (k + 1) % n_lon
-            d = 1 + (i + 1) * n_lon + k
-            faces += [[a, d, c], [a, c, b]]
-    f = np.array(faces)
-    # make the winding outward (normals away from the dome's axis)
-    tri = v[f]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    out = tri.mean(1) - (np.asarray(centre, float) + [0, 0, 0.3 * height])
-    flip = (n * out).sum(1) < 0
-    f[flip] = f[flip][:, [0, 2, 1]]
-    return v, f
-
-
-def ellipse_disk(centre, a, b, yaw_deg=0.0, n_seg: int = 48):
-    """Flat ellipse (fan) facing +z. Returns (V, F)."""
-    phi = np.linspace(0, 2 * np.pi, n_seg, endpoint=False)
-    t = np.deg2rad(yaw_deg)
-    x = a * np.cos(phi)
-    y = b * np.sin(phi)
-    ring = np.stack([x * np.cos(t) - y * np.sin(t), x * np.sin(t) + y * np.cos(t), np.zeros(n_seg)], 1)
-    v = np.concatenate([[[0.0, 0.0, 0.0]], ring]) + np.asarray(centre, float)
-    i = np.arange(n_seg)
-    f = np.stack([np.zeros(n_seg, int), 1 + i, 1 + (i + 1) % n_seg], 1)
-    return v, f
-
-
-def merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """Concatenate (V, F) meshes into one."""
-    vs, fs, off = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(np.asarray(f) + off)
-        off += len(v)
-    return np.concatenate(vs), np.concatenate(fs)
 
 
 # ----------------------------------------------------------------------------------------
@@ -321,54 +172,74 @@ def _leaf_crowns(rng, crowns: list[dict], facet_m: float, lad_m2_m3: float, shap
     return merge(meshes)
 
 
-def build_testsite(seed: int, texture_px: int = 512) -> SceneGeometry:
-    rng = np.random.default_rng([seed, 1])
-    g = SceneGeometry("testsite")
-    ter = _Terrain(rng, relief_m=0.35, hill_scale_px=40)
-    x, y = ter.face_xy[:, 0], ter.face_xy[:, 1]
+@dataclass
+class _Site:
+    """Layout of the testsite: pond (ellipse, water level) and building (yard level), with the two
+    coordinate maps the terrain shaping, labelling and object placement use."""
 
-    # pond: ellipse, water level below the local ground
-    pond_c = np.array([-16.0, -14.0])
-    pond_a, pond_b, pond_yaw = 9.0, 6.0, 25.0
-    t = np.deg2rad(pond_yaw)
-    def ell(px, py):
-        dx, dy = px - pond_c[0], py - pond_c[1]
+    pond_c: np.ndarray
+    pond_a: float
+    pond_b: float
+    pond_yaw: float
+    bld_c: np.ndarray
+    bld_yaw: float
+    water_z: float = 0.0
+    yard_z: float = 0.0
+
+    def pond_radius(self, px, py):
+        """Elliptic radius around the pond (1 on its shore)."""
+        t = np.deg2rad(self.pond_yaw)
+        dx, dy = px - self.pond_c[0], py - self.pond_c[1]
         u = dx * np.cos(t) + dy * np.sin(t)
         w = -dx * np.sin(t) + dy * np.cos(t)
-        return np.sqrt((u / pond_a) ** 2 + (w / pond_b) ** 2)
-    water_z = ter.height_at(*pond_c) - 0.25
-    dv = ell(ter.xy[:, 0], ter.xy[:, 1])
-    ter.z = np.where(dv < 1.02, water_z - 0.6, np.where(dv < 1.5, np.maximum(ter.z, water_z + 0.08), ter.z))
+        return np.sqrt((u / self.pond_a) ** 2 + (w / self.pond_b) ** 2)
 
-    # building on a concrete yard, asphalt road to the south edge
-    bld_c = np.array([14.0, 12.0])
-    bld_yaw = 20.0
-    yard_z = ter.height_at(*bld_c) + 0.05
-    tb = np.deg2rad(bld_yaw)
-    def local(px, py, c):
-        dx, dy = px - c[0], py - c[1]
+    def building_frame(self, px, py):
+        """(along, across) coordinates (m) in the building's frame."""
+        tb = np.deg2rad(self.bld_yaw)
+        dx, dy = px - self.bld_c[0], py - self.bld_c[1]
         return dx * np.cos(tb) + dy * np.sin(tb), -dx * np.sin(tb) + dy * np.cos(tb)
-    lu, lw = local(ter.xy[:, 0], ter.xy[:, 1], bld_c)
+
+
+def _shape_testsite_terrain(ter: _Terrain) -> tuple[_Site, np.ndarray, np.ndarray]:
+    """Sink the pond, level the yard and flatten the road in ``ter``; returns the site and the yard and
+    road face masks."""
+    site = _Site(np.array([-16.0, -14.0]), 9.0, 6.0, 25.0, np.array([14.0, 12.0]), 20.0)
+    x, y = ter.face_xy[:, 0], ter.face_xy[:, 1]
+    # pond: ellipse, water level below the local ground
+    site.water_z = water_z = ter.height_at(*site.pond_c) - 0.25
+    dv = site.pond_radius(ter.xy[:, 0], ter.xy[:, 1])
+    ter.z = np.where(dv < 1.02, water_z - 0.6, np.where(dv < 1.5, np.maximum(ter.z, water_z + 0.08), ter.z))
+    # building on a concrete yard, asphalt road to the south edge
+    site.yard_z = ter.height_at(*site.bld_c) + 0.05
+    lu, lw = site.building_frame(ter.xy[:, 0], ter.xy[:, 1])
     in_yard_v = (np.abs(lu) < 15.5) & (np.abs(lw) < 12.5)
-    ter.z = np.where(in_yard_v, yard_z, ter.z)
-    fu, fw = local(x, y, bld_c)
+    ter.z = np.where(in_yard_v, site.yard_z, ter.z)
+    fu, fw = site.building_frame(x, y)
     yard = (np.abs(fu) < 15.0) & (np.abs(fw) < 12.0)
     road = (np.abs(x - 26.0) < 2.5) & (y < 2.0)
     road_v = (np.abs(ter.xy[:, 0] - 26.0) < 3.0) & (ter.xy[:, 1] < 2.5)
     ter.z = np.where(road_v & ~in_yard_v, ter.z * 0.3 + 0.02, ter.z)
+    return site, yard, road
 
-    # ploughed field (bare soil) in the south-east, bare patches in the grass elsewhere
+
+def _label_testsite(rng, ter: _Terrain, site: _Site, yard: np.ndarray, road: np.ndarray) -> None:
+    """Face materials: grass; bare soil in patches, the ploughed field (south-east) and the pond banks;
+    concrete yard; asphalt road."""
+    x, y = ter.face_xy[:, 0], ter.face_xy[:, 1]
     n_soil = fbm(rng, ter.n + 1, (12.0,), (1.0,))
     patch = n_soil.ravel()[np.minimum(((y + CORE_HALF_M) / CORE_SPACING_M).astype(int), ter.n) * (ter.n + 1)
                            + np.minimum(((x + CORE_HALF_M) / CORE_SPACING_M).astype(int), ter.n)] > 1.1
-    field = (x > 32.0) & (y < -6.0)
+    ploughed = (x > 32.0) & (y < -6.0)
     ter.label[:] = "grass"
-    ter.label[patch | field] = "soil"
+    ter.label[patch | ploughed] = "soil"
     ter.label[yard] = "concrete"
     ter.label[road & ~yard] = "asphalt"
-    ter.label[ell(x, y) < 1.25] = "soil"  # pond banks and bed
+    ter.label[site.pond_radius(x, y) < 1.25] = "soil"  # pond banks and bed
 
-    tp = texture_px
+
+def _add_testsite_ground(g: SceneGeometry, ter: _Terrain, seed: int, tp: int) -> None:
+    """Ground textures, terrain parts and the surroundings of the testsite."""
     g.textures["grass"] = _texture_maps([seed, 1, 101], tp, False, 0.85, 0.15, 0.18)
     g.textures["soil"] = _texture_maps([seed, 1, 102], tp, False, 0.55, 0.25, 0.15,
                                        furrow_period_px=tp / (2 * CORE_HALF_M / 1.5))
@@ -378,23 +249,24 @@ def build_testsite(seed: int, texture_px: int = 512) -> SceneGeometry:
     g.parts += ter.parts({m: m for m in ("grass", "soil", "concrete", "asphalt")})
     g.parts.append(_surroundings("grass", "field"))
 
-    # pond water surface
-    v, f = ellipse_disk([pond_c[0], pond_c[1], water_z], pond_a * 1.04, pond_b * 1.04, pond_yaw)
-    g.parts.append(MeshPart("pond", "water", v, f))
-    g.objects.append({"type": "pond", "centre_m": [*pond_c.tolist(), water_z], "semi_axes_m": [pond_a, pond_b],
-                      "yaw_deg": pond_yaw})
 
-    # building: walls of concrete, flat bitumen roof
+def _add_pond_and_building(g: SceneGeometry, site: _Site) -> None:
+    """Pond water surface; building (concrete walls, flat bitumen roof); four cars with glossy
+    clear-coat paint parked in front of it."""
+    pond_c, pond_yaw, water_z = site.pond_c, site.pond_yaw, site.water_z
+    v, f = ellipse_disk([pond_c[0], pond_c[1], water_z], site.pond_a * 1.04, site.pond_b * 1.04, pond_yaw)
+    g.parts.append(MeshPart("pond", "water", v, f))
+    g.objects.append({"type": "pond", "centre_m": [*pond_c.tolist(), water_z],
+                      "semi_axes_m": [site.pond_a, site.pond_b], "yaw_deg": pond_yaw})
+    bld_c, bld_yaw, yard_z = site.bld_c, site.bld_yaw, site.yard_z
     bsize = (14.0, 9.0, 6.0)
     v, f = box([bld_c[0], bld_c[1], yard_z], bsize, bld_yaw)
     g.parts.append(MeshPart("building_roof", "roof", v, f[:2]))
     g.parts.append(MeshPart("building_walls", "concrete_wall", v, f[2:]))
     g.objects.append({"type": "building", "centre_m": [*bld_c.tolist(), yard_z], "size_m": list(bsize),
                       "yaw_deg": bld_yaw})
-
-    # cars parked in front of the building (glossy clear-coat paint)
-    colours = ["red", "white", "blue", "silver"]
-    for k, col in enumerate(colours):
+    tb = np.deg2rad(bld_yaw)
+    for k, col in enumerate(["red", "white", "blue", "silver"]):
         cu, cw = -8.0 + 4.2 * k, -9.0
         cx = bld_c[0] + cu * np.cos(tb) - cw * np.sin(tb)
         cy = bld_c[1] + cu * np.sin(tb) + cw * np.cos(tb)
@@ -406,7 +278,26 @@ def build_testsite(seed: int, texture_px: int = 512) -> SceneGeometry:
         g.objects.append({"type": "vehicle", "paint": col, "centre_m": [float(cx), float(cy), yard_z],
                           "yaw_deg": yaw})
 
-    # broadleaf trees: a group in the north-west plus two isolated ones
+
+def _add_trees(g: SceneGeometry, rng, crowns: list[dict], trunks: list, crown_part: tuple[str, str],
+               facet_m: float, lad_m2_m3: float, shape: str) -> None:
+    """Leaf-facet crowns (part ``crown_part`` = (name, material)), bark trunks and one object per tree."""
+    v, f = _leaf_crowns(rng, crowns, facet_m=facet_m, lad_m2_m3=lad_m2_m3, shape=shape)
+    g.parts.append(MeshPart(crown_part[0], crown_part[1], v, f))
+    v, f = merge(trunks)
+    g.parts.append(MeshPart("trunks", "bark", v, f))
+    for c in crowns:
+        if shape == "ellipsoid":
+            g.objects.append({"type": "tree", "crown": "ellipsoid", "centre_m": [float(q) for q in c["centre"]],
+                              "radii_m": [float(q) for q in c["radii"]], "n_facets": c["n_facets"]})
+        else:
+            g.objects.append({"type": "tree", "crown": "cone", "base_m": [float(q) for q in c["base"]],
+                              "radius_m": float(c["radius"]), "height_m": float(c["height"]),
+                              "n_facets": c["n_facets"]})
+
+
+def _add_broadleaf_trees(g: SceneGeometry, rng, ter: _Terrain) -> list[tuple[float, float]]:
+    """Broadleaf trees, a group in the north-west plus two isolated ones; returns their (x, y)."""
     crowns, trunks = [], []
     centres = [(-20.0 + 5.5 * i + rng.uniform(-1, 1), 14.0 + 5.0 * j + rng.uniform(-1, 1))
                for i in range(4) for j in range(3)] + [(5.0, -25.0), (-40.0, -30.0)]
@@ -416,34 +307,52 @@ def build_testsite(seed: int, texture_px: int = 512) -> SceneGeometry:
         zg = ter.height_at(cx, cy)
         crowns.append({"centre": [cx, cy, zg + h - r * 1.1], "radii": [r, r, r * 1.1]})
         trunks.append(cylinder([cx, cy, zg - 0.2], 0.18, h - r * 1.1 + 0.2))
-    v, f = _leaf_crowns(rng, crowns, facet_m=0.32, lad_m2_m3=1.1, shape="ellipsoid")
-    g.parts.append(MeshPart("broadleaf_crowns", "broadleaf", v, f))
-    v, f = merge(trunks)
-    g.parts.append(MeshPart("trunks", "bark", v, f))
-    for c in crowns:
-        g.objects.append({"type": "tree", "crown": "ellipsoid", "centre_m": [float(q) for q in c["centre"]],
-                          "radii_m": [float(q) for q in c["radii"]], "n_facets": c["n_facets"]})
+    _add_trees(g, rng, crowns, trunks, ("broadleaf_crowns", "broadleaf"), 0.32, 1.1, "ellipsoid")
+    return centres
 
-    # shrubs scattered in the grass, away from the pond, yard and road
+
+def _add_shrubs(g: SceneGeometry, rng, ter: _Terrain, n: int, allowed, r_range: tuple[float, float],
+                z_frac: float, flat: float) -> None:
+    """``n`` shrubs (ellipsoids of radius r in ``r_range``, centre z_frac·r above the ground, height
+    flat·r) at uniform random places in the core where ``allowed(x, y)`` holds."""
     shrubs = []
-    while len(shrubs) < 30:
+    while len(shrubs) < n:
         sx, sy = rng.uniform(-55, 55, 2)
-        fu_, fw_ = local(sx, sy, bld_c)
-        if ell(sx, sy) < 1.6 or (abs(fu_) < 17 and abs(fw_) < 14) or abs(sx - 26) < 5 or (sx > 30 and sy < -4):
+        if not allowed(sx, sy):
             continue
-        if any((sx - cx) ** 2 + (sy - cy) ** 2 < 16 for cx, cy in centres):
-            continue
-        r = rng.uniform(0.6, 1.1)
-        shrubs.append({"centre": [sx, sy, ter.height_at(sx, sy) + 0.7 * r], "radii": [r, r, 0.8 * r]})
+        r = rng.uniform(*r_range)
+        shrubs.append({"centre": [sx, sy, ter.height_at(sx, sy) + z_frac * r], "radii": [r, r, flat * r]})
     v, f = _leaf_crowns(rng, shrubs, facet_m=0.22, lad_m2_m3=1.5, shape="ellipsoid")
     g.parts.append(MeshPart("shrubs", "shrub", v, f))
     for c in shrubs:
         g.objects.append({"type": "shrub", "centre_m": [float(q) for q in c["centre"]],
                           "radii_m": [float(q) for q in c["radii"]], "n_facets": c["n_facets"]})
+
+
+def build_testsite(seed: int, texture_px: int = 512) -> SceneGeometry:
+    """The ``testsite`` scene (module docstring), deterministic from ``seed``."""
+    rng = np.random.default_rng([seed, 1])
+    g = SceneGeometry("testsite")
+    ter = _Terrain(rng, relief_m=0.35, hill_scale_px=40)
+    site, yard, road = _shape_testsite_terrain(ter)
+    _label_testsite(rng, ter, site, yard, road)
+    _add_testsite_ground(g, ter, seed, texture_px)
+    _add_pond_and_building(g, site)
+    centres = _add_broadleaf_trees(g, rng, ter)
+
+    def allowed(sx, sy):  # in the grass, away from the pond, yard, road, field and trees
+        fu_, fw_ = site.building_frame(sx, sy)
+        if site.pond_radius(sx, sy) < 1.6 or (abs(fu_) < 17 and abs(fw_) < 14) or abs(sx - 26) < 5 or \
+                (sx > 30 and sy < -4):
+            return False
+        return not any((sx - cx) ** 2 + (sy - cy) ** 2 < 16 for cx, cy in centres)
+
+    _add_shrubs(g, rng, ter, 30, allowed, (0.6, 1.1), 0.7, 0.8)
     return g
 
 
 def build_forest(seed: int, texture_px: int = 512) -> SceneGeometry:
+    """The ``forest`` scene (module docstring), deterministic from ``seed``."""
     rng = np.random.default_rng([seed, 2])
     g = SceneGeometry("forest")
     ter = _Terrain(rng, relief_m=1.2, hill_scale_px=60)
@@ -476,26 +385,9 @@ def build_forest(seed: int, texture_px: int = 512) -> SceneGeometry:
         zg = ter.height_at(cx, cy)
         crowns.append({"base": [cx, cy, zg + base_h], "radius": r, "height": h - base_h})
         trunks.append(cylinder([cx, cy, zg - 0.2], 0.15, base_h + 0.5, 6))
-    v, f = _leaf_crowns(rng, crowns, facet_m=0.30, lad_m2_m3=1.3, shape="cone")
-    g.parts.append(MeshPart("conifer_crowns", "needles", v, f))
-    v, f = merge(trunks)
-    g.parts.append(MeshPart("trunks", "bark", v, f))
-    for c in crowns:
-        g.objects.append({"type": "tree", "crown": "cone", "base_m": [float(q) for q in c["base"]],
-                          "radius_m": float(c["radius"]), "height_m": float(c["height"]), "n_facets": c["n_facets"]})
-
-    shrubs = []
-    while len(shrubs) < 40:
-        sx, sy = rng.uniform(-55, 55, 2)
-        if any((sx - cx) ** 2 + (sy - cy) ** 2 < 9 for cx, cy in pos):
-            continue
-        r = rng.uniform(0.5, 1.2)
-        shrubs.append({"centre": [sx, sy, ter.height_at(sx, sy) + 0.6 * r], "radii": [r, r, 0.7 * r]})
-    v, f = _leaf_crowns(rng, shrubs, facet_m=0.22, lad_m2_m3=1.5, shape="ellipsoid")
-    g.parts.append(MeshPart("shrubs", "shrub", v, f))
-    for c in shrubs:
-        g.objects.append({"type": "shrub", "centre_m": [float(q) for q in c["centre"]],
-                          "radii_m": [float(q) for q in c["radii"]], "n_facets": c["n_facets"]})
+    _add_trees(g, rng, crowns, trunks, ("conifer_crowns", "needles"), 0.30, 1.3, "cone")
+    _add_shrubs(g, rng, ter, 40, lambda sx, sy: not any((sx - cx) ** 2 + (sy - cy) ** 2 < 9 for cx, cy in pos),
+                (0.5, 1.2), 0.6, 0.7)
 
     stacks = []
     for hx, hy in [(30.0, 10.0), (36.0, 4.0), (28.0, -20.0)]:

@@ -70,32 +70,42 @@ def _straw_bhr():
     return sp.sail_bhr(2.0, 2.0, 3.0, 1.2, 0.001, 0.012, 8.0, 50.0, 1.0, 0.8)
 
 
+# Untextured diffuse materials: (spectrum of spectra, description).
+_UNIFORM_DIFFUSE = {
+    "concrete": (sp.concrete, "weathered concrete yard (analytic, spectra.concrete)"),
+    "concrete_wall": (sp.concrete, "concrete walls (spectra.concrete)"),
+    "asphalt": (sp.asphalt, "aged asphalt road (spectra.asphalt)"),
+    "roof": (sp.bitumen_roof, "flat bitumen roof (spectra.bitumen_roof)"),
+    "bark": (sp.bark, "tree trunks (spectra.bark)"),
+}
+# Leaf materials: (PROSPECT-D N, Cab, Car, Cbrown, Cw, Cm, Ant), description.
+_LEAVES = {
+    "broadleaf": ((1.6, 45.0, 9.0, 0.0, 0.012, 0.006, 1.0),
+                  "broadleaf: PROSPECT-D N 1.6 Cab 45 Car 9 Cw .012 Cm .006 Ant 1"),
+    "shrub": ((1.8, 35.0, 8.0, 0.1, 0.010, 0.007, 0.5), "shrub leaves: PROSPECT-D N 1.8 Cab 35 Cbrown .1"),
+    "needles": ((2.2, 55.0, 12.0, 0.05, 0.020, 0.020, 0.0), "conifer needles: PROSPECT-D N 2.2 Cab 55 Cm .02"),
+}
+
+
 def material(name: str) -> Material:
     """The material called ``name`` (one of MATERIAL_NAMES except "none")."""
-    s1, s2 = sp.soil_endmembers()
+    if name in _UNIFORM_DIFFUSE:
+        spectrum, description = _UNIFORM_DIFFUSE[name]
+        c = spectrum()
+        return Material(name, "diffuse", c, c, description=description)
+    if name in _LEAVES:
+        params, description = _LEAVES[name]
+        r, t = sp.prospect_leaf(*params)
+        return Material(name, "leaf", r, r, t, description=description)
     if name == "grass":
         return Material(name, "diffuse", _grass_bhr(), sp.soil(1.0, 0.3),
                         description="turf: SAIL BHR of a PROSPECT-D canopy (LAI 3, Cab 40) mixed with moist soil")
     if name == "soil":
+        s1, s2 = sp.soil_endmembers()
         return Material(name, "diffuse", s1, s2, description="prosail dry (rsoil1) / wet (rsoil2) soil mixture")
     if name == "soil_plain":
         return Material(name, "diffuse", sp.soil(1.0, 0.6), sp.soil(1.0, 0.6),
                         description="uniform prosail soil, 60 % dry")
-    if name == "concrete":
-        c = sp.concrete()
-        return Material(name, "diffuse", c, c, description="weathered concrete yard (analytic, spectra.concrete)")
-    if name == "concrete_wall":
-        c = sp.concrete()
-        return Material(name, "diffuse", c, c, description="concrete walls (spectra.concrete)")
-    if name == "asphalt":
-        a = sp.asphalt()
-        return Material(name, "diffuse", a, a, description="aged asphalt road (spectra.asphalt)")
-    if name == "roof":
-        r = sp.bitumen_roof()
-        return Material(name, "diffuse", r, r, description="flat bitumen roof (spectra.bitumen_roof)")
-    if name == "bark":
-        b = sp.bark()
-        return Material(name, "diffuse", b, b, description="tree trunks (spectra.bark)")
     if name == "water":
         w = sp.water_body()
         return Material(name, "plastic", w, w, alpha=0.12, ior=1.333,
@@ -105,16 +115,6 @@ def material(name: str) -> Material:
         p = sp.paint(name[6:])
         return Material(name, "plastic", p, p, alpha=0.05 if name != "paint_silver" else 0.12, ior=1.5,
                         description=f"car paint: clear coat (GGX, n 1.5) over {name[6:]} pigment (spectra.paint)")
-    if name == "broadleaf":
-        r, t = sp.prospect_leaf(1.6, 45.0, 9.0, 0.0, 0.012, 0.006, 1.0)
-        return Material(name, "leaf", r, r, t,
-                        description="broadleaf: PROSPECT-D N 1.6 Cab 45 Car 9 Cw .012 Cm .006 Ant 1")
-    if name == "shrub":
-        r, t = sp.prospect_leaf(1.8, 35.0, 8.0, 0.1, 0.010, 0.007, 0.5)
-        return Material(name, "leaf", r, r, t, description="shrub leaves: PROSPECT-D N 1.8 Cab 35 Cbrown .1")
-    if name == "needles":
-        r, t = sp.prospect_leaf(2.2, 55.0, 12.0, 0.05, 0.020, 0.020, 0.0)
-        return Material(name, "leaf", r, r, t, description="conifer needles: PROSPECT-D N 2.2 Cab 55 Cm .02")
     if name == "dry_grass":
         return Material(name, "diffuse", _dry_grass_bhr(), sp.soil(1.0, 0.8),
                         description="dry grassland: SAIL BHR of senescent PROSPECT-D leaves (Cab 8, Cbrown .8, LAI 1.5)"

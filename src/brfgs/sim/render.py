@@ -54,7 +54,7 @@ def setup_mitsuba(variant: str = DEFAULT_VARIANT):
                 os.environ["DRJIT_LIBLLVM_PATH"] = found[0]
                 break
     try:
-        import mitsuba as mi
+        import mitsuba as mi  # lazy: DRJIT_LIBLLVM_PATH must be set before the first import (above)
     except ImportError as exc:  # pragma: no cover - dependency declared in pyproject
         raise UserError(f"mitsuba is not installed ({exc}); pip install mitsuba") from None
     if mi.variant() != variant:
@@ -69,7 +69,7 @@ def setup_mitsuba(variant: str = DEFAULT_VARIANT):
 
 def _register_leaf_bsdf(mi) -> None:
     """Register the ``brfgs_leaf`` BSDF (diffuse reflection R + diffuse transmission T, two-sided)."""
-    import drjit as dr
+    import drjit as dr  # lazy: like mitsuba, only after setup_mitsuba has set DRJIT_LIBLLVM_PATH
 
     class LeafBSDF(mi.BSDF):
         """Thin Lambertian leaf: f = R/π on the incident side, T/π on the other side.
@@ -202,7 +202,7 @@ class BandTripletRenderer:
         self.scene = mi.load_dict(scene_dict, optimize=False)
         self._scene_params = mi.traverse(self.scene)
         # shape registry id -> material id, for ray-cast material maps
-        import drjit as dr
+        import drjit as dr  # lazy: like mitsuba, only after setup_mitsuba has set DRJIT_LIBLLVM_PATH
 
         reg = {}
         for shape in self.scene.shapes():
@@ -309,7 +309,7 @@ class BandTripletRenderer:
         """Depth [H, W] (m along the optical axis, NaN where nothing is hit) and material id [H, W] (int16)
         of the surfaces through the pixel centres."""
         mi = self.mi
-        import drjit as dr
+        import drjit as dr  # lazy: like mitsuba, only after setup_mitsuba has set DRJIT_LIBLLVM_PATH
 
         o, d = pixel_rays(c2w_gl, intr)  # [H, W, 3] each
         o = o.reshape(-1, 3)

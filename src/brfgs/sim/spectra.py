@@ -75,7 +75,7 @@ def _extend_below_400_power(values_400_1000: np.ndarray) -> np.ndarray:
 def prospect_leaf(n: float, cab: float, car: float, cbrown: float, cw: float, cm: float,
                   ant: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """PROSPECT-D leaf (reflectance [651], transmittance [651]) on GRID_NM."""
-    import prosail
+    import prosail  # lazy: a ~1 s import (it compiles numba code); only the material spectra need it
 
     wl, r, t = prosail.run_prospect(n, cab, car, cbrown, cw, cm, ant=ant, prospect_version="D")
     sel = (wl >= 400) & (wl <= 1000)
@@ -89,7 +89,7 @@ def prospect_leaf(n: float, cab: float, car: float, cbrown: float, cw: float, cm
 
 def soil_endmembers() -> tuple[np.ndarray, np.ndarray]:
     """prosail's dry (rsoil1) and wet (rsoil2) soil spectra [651] on GRID_NM."""
-    import prosail
+    import prosail  # lazy: a ~1 s import (it compiles numba code); only the material spectra need it
 
     s1 = np.asarray(prosail.spectral_lib.soil.rsoil1, float)[:601]  # 400..1000 nm
     s2 = np.asarray(prosail.spectral_lib.soil.rsoil2, float)[:601]
@@ -106,7 +106,7 @@ def soil(brightness: float = 1.0, dry_fraction: float = 0.5) -> np.ndarray:
 def sail_bhr(n: float, cab: float, car: float, cbrown: float, cw: float, cm: float, lai: float,
              lidfa: float, soil_brightness: float, soil_dry: float) -> np.ndarray:
     """Bi-hemispherical reflectance [651] of a PROSPECT-D + SAIL turf (Lambertian-equivalent albedo)."""
-    import prosail
+    import prosail  # lazy: a ~1 s import (it compiles numba code); only the material spectra need it
 
     bhr = prosail.run_prosail(n, cab, car, cbrown, cw, cm, lai, lidfa, 0.05, 30.0, 0.0, 0.0,
                               prospect_version="D", typelidf=2, factor="BHR",

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+from tqdm import tqdm
 
 
 @dataclass
@@ -169,8 +170,6 @@ def train_autoencoder(
     it = range(cfg.steps)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(it, desc="autoencoder", leave=False)
         it = bar
     for step in it:
