@@ -20,7 +20,6 @@ of simulated scenes: at the frames, and rendered again by the simulator,
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -42,6 +41,7 @@ from brfgs.data.angles import relative_azimuth_deg
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel
+from brfgs.data import atomic
 
 __all__ = ["TruthOptions", "BRFOptions", "brf_report", "open_model_scene"]
 
@@ -404,7 +404,7 @@ def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
     t0 = time.perf_counter()
     with torch_threads(opts.threads or None):
         r.region = resolve_roi(spec, r.tm, r.scene, opts.backend)
-        (r.out / "roi.json").write_text(json.dumps(r.region.describe(), indent=1))
+        atomic.write_json(r.out / "roi.json", r.region.describe())
         r.timings["roi_s"] = time.perf_counter() - t0
         r.summary = {"model": r.tm.source, "scene": r.tm.scene_name, "roi": r.region.describe(),
                      "bands_nm": [float(w) for w in r.wl], "sun_zenith_deg": r.tm.sun_zenith_deg,
@@ -414,7 +414,7 @@ def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
     _observations(r, obs)
     r.timings["total_s"] = time.perf_counter() - t0
     r.summary["timings_s"] = r.timings
-    (r.out / "brf.json").write_text(json.dumps(r.summary, indent=1))
+    atomic.write_json(r.out / "brf.json", r.summary)
     peaks = r.summary["principal_plane"]["peak_signed_zenith_deg"]
     pk = ", ".join(f"{k} nm: {v:+.1f}°" for k, v in peaks.items())
     sz = r.tm.sun_zenith_deg

@@ -36,7 +36,6 @@ Colours (``view_dependence``):
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import time
 from dataclasses import dataclass
@@ -53,6 +52,7 @@ from brfgs.brdf.head import roughness_from_raw
 from brfgs.brdf.sh import sh_basis
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel
+from brfgs.data import atomic
 
 __all__ = ["SH_C0", "STANDARD_PROPERTIES", "N_SH_REST", "VIEW_DEPENDENCE", "gaussian_cir_colours",
            "hemisphere_directions", "fit_cir_sh", "write_ply", "read_ply", "ExportOptions", "export_model"]
@@ -243,14 +243,13 @@ def write_ply(
         arr[k] = np.asarray(v, np.float32)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
     el = PlyElement.describe(arr, "vertex")
     comments = [f"brfgs BRF-GS export: scene {tm.scene_name}",
                 f"f_dc/f_rest = CIR (850/650/550 nm) colour as SH degree 3: {info['method']}",
                 f"wavelengths_nm {tm.wavelengths_nm.min():.1f}-{tm.wavelengths_nm.max():.1f} "
                 f"({len(tm.wavelengths_nm)} bands); z_* are latent (decode with the model file)"]
-    PlyData([el], text=False, byte_order="<", comments=comments).write(str(tmp))
-    tmp.replace(path)
+    with atomic.atomic_path(path) as tmp:
+        PlyData([el], text=False, byte_order="<", comments=comments).write(str(tmp))
     return path
 
 
@@ -314,5 +313,5 @@ def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = 
                             **colour_info},
             "timings_s": {"ply": t_ply},
             "model_format": "safetensors + JSON metadata (brfgs-gaussians/1); loading never executes code"}
-    (out / "export.json").write_text(json.dumps(info, indent=1))
+    atomic.write_json(out / "export.json", info)
     return info

@@ -25,6 +25,7 @@ from PIL import Image
 
 matplotlib.use("Agg", force=False)  # figures are written to files; must precede pyplot
 import matplotlib.pyplot as plt  # noqa: E402
+from brfgs.data import atomic
 
 __all__ = [
     "PolarGrid",
@@ -62,7 +63,7 @@ def write_csv(path: str | Path, header: list[str], rows: Iterable[Sequence]) -> 
     """Write rows (iterables) under ``header``; numbers with 6 significant digits, NaN as empty."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
+    with atomic.open_text(path, newline="") as f:
         w = csv.writer(f)
         w.writerow(header)
         for r in rows:
@@ -76,7 +77,8 @@ def save_rgb_png(path: str | Path, rgb: np.ndarray) -> Path:
     a = np.nan_to_num(np.asarray(rgb, float), nan=0.0)
     img = (np.clip(a, 0, 1) * 255 + 0.5).astype(np.uint8)
     path = Path(path)
-    Image.fromarray(img).save(path)
+    with atomic.atomic_path(path) as tmp:
+        Image.fromarray(img).save(tmp, format="PNG")
     return path
 
 
@@ -189,7 +191,7 @@ def _finish(fig, path: str | Path, title: str, axes=None, used: int = 0, **savef
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, **savefig)
+    atomic.save_figure(fig, path, **savefig)
     plt.close(fig)
     return Path(path)
 

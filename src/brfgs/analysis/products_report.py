@@ -9,7 +9,6 @@ mean at that band, optionally the decoder check).
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ from brfgs.data.cameras import Intrinsics
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
 from brfgs.model import TrainedModel, camera_from_intrinsics
+from brfgs.data import atomic
 
 __all__ = ["ProductsOptions", "products_report", "PRODUCT_NAMES", "write_product_files"]
 
@@ -80,7 +80,7 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
         files[name] = {"cube": hdr.name, "png": png.name, "description": descriptions[name],
                        "mean_at_nm": float(band[ok].mean()) if ok.any() else None,
                        "finite_fraction": float(ok.mean())}
-    np.save(out / "alpha.npy", products["alpha"].astype(np.float32))
+    atomic.save_npy(out / "alpha.npy", products["alpha"].astype(np.float32))
     return files
 
 
@@ -134,5 +134,5 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
                       "integrals assume a horizontal facet", f"NaN where the accumulated opacity < {opts.min_alpha:g}"]}
     if opts.check_decoder:
         info["decoder_check"] = P.decoder_nonlinearity(tm, az)
-    (out / "products.json").write_text(json.dumps(info, indent=1))
+    atomic.write_json(out / "products.json", info)
     return Report(out, info, f"products ({intr.w}x{intr.h}, {len(wl)} bands) in {t_render:.1f} s -> {out}")

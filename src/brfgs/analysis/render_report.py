@@ -8,7 +8,6 @@ GIF. Every view goes through the one render path, :func:`brfgs.model.render`.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from brfgs.data.cameras import Intrinsics
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
 from brfgs.model import RenderedView, TrainedModel, camera_from_intrinsics, render
+from brfgs.data import atomic
 
 __all__ = ["RenderOptions", "render_report", "PATHS"]
 
@@ -100,11 +100,11 @@ def _write_view(out: Path, tm: TrainedModel, rv: RenderedView, description: str)
         files["cube"] = str(write_envi(out / "cube.hdr", rv.cube, tm.wavelengths_nm, tm.fwhm_nm,
                                        extra={"description": description}))
     files["cir_png"] = str(plots.save_rgb_png(out / "cir.png", rv.cir))
-    np.save(out / "depth.npy", rv.depth.astype(np.float32))
-    np.save(out / "alpha.npy", rv.alpha.astype(np.float32))
+    atomic.save_npy(out / "depth.npy", rv.depth.astype(np.float32))
+    atomic.save_npy(out / "alpha.npy", rv.alpha.astype(np.float32))
     files["depth_png"] = str(plots.save_depth_png(out / "depth.png", rv.depth, rv.alpha))
     if rv.normal is not None:
-        np.save(out / "normal.npy", rv.normal.astype(np.float32))
+        atomic.save_npy(out / "normal.npy", rv.normal.astype(np.float32))
         files["normal_png"] = str(plots.save_normal_png(out / "normal.png", rv.normal))
     return files
 
@@ -126,7 +126,7 @@ def _single_view(out: Path, vw: _Viewer, vz: float, va: float, repeat: int, info
                  "files": files,
                  "depth": "metres along the optical axis (0 where nothing is rendered)",
                  "normal": "unit world (ENU) normals facing the camera, 0 where nothing is rendered"})
-    (out / "render.json").write_text(json.dumps(info, indent=1))
+    atomic.write_json(out / "render.json", info)
     w, h = vw.size
     return (f"rendered {w}x{h}, {len(vw.tm.wavelengths_nm)} bands in {med['total_s'] * 1000:.0f} ms "
             f"({'median of ' + str(len(warm)) + ' warm calls' if repeat > 1 else 'first call'}) -> {out}")
@@ -145,10 +145,11 @@ def _path_views(out: Path, vw: _Viewer, opts: RenderOptions, vz: float, va: floa
         rows.append({"frame": k, "view_zenith_deg": z, "view_azimuth_deg": a, "file": str(p)})
         times.append(rv.timings_s["total_s"])
     gif = out / f"{opts.path}.gif"
-    imgs[0].save(gif, save_all=True, append_images=imgs[1:], duration=100, loop=0)
+    with atomic.atomic_path(gif) as tmp:
+        imgs[0].save(tmp, format="GIF", save_all=True, append_images=imgs[1:], duration=100, loop=0)
     info.update({"path": opts.path, "frames": rows, "timings_s": {"median_total_s": float(np.median(times))},
                  "gif": str(gif)})
-    (out / "render.json").write_text(json.dumps(info, indent=1))
+    atomic.write_json(out / "render.json", info)
     return f"rendered {len(seq)} frames ({np.median(times) * 1000:.0f} ms each) -> {gif}"
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from brfgs.bands import efc as E
+from brfgs.data import atomic
 from brfgs.data.figures import pyplot
 from brfgs.errors import UserError
 
@@ -258,5 +259,5 @@ def plot_band_stats(selection: BandSelection, path) -> None:
     more = "" if len(selection.selected) <= 10 else f" ... ({len(selection.selected)} bands)"
     axes[0].set_title(f"band selection '{selection.strategy}': {chosen} nm{more}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    atomic.save_figure(fig, path, dpi=120)
     plt.close(fig)

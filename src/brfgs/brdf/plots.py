@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from brfgs.brdf import kernels as K
+from brfgs.data import atomic
 from brfgs.data.figures import pyplot
 
 __all__ = ["KernelGrid", "kernel_grid", "principal_plane", "write_kernel_csv", "plot_kernels", "CSV_COLUMNS"]
@@ -78,7 +79,7 @@ def principal_plane(
 def write_kernel_csv(path: str | Path, grid: KernelGrid) -> None:
     """CSV with columns :data:`CSV_COLUMNS`, one row per grid node (zenith-major)."""
     path = Path(path)
-    with path.open("w", newline="") as f:
+    with atomic.open_text(path, newline="") as f:
         w = csv.writer(f)
         w.writerow(CSV_COLUMNS)
         for i, vz in enumerate(grid.view_zenith_deg):
@@ -145,5 +146,5 @@ def plot_kernels(path: str | Path, grid: KernelGrid, dpi: int = 120) -> None:
         pax.set_xticklabels(["φ=0° (back)", "90°", "180° (forward)", "270°"], fontsize=8)
         fig.colorbar(mesh, ax=pax, shrink=0.75, pad=0.1)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
-    fig.savefig(path, dpi=dpi)
+    atomic.save_figure(fig, path, dpi=dpi)
     plt.close(fig)

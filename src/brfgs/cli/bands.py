@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
@@ -41,6 +40,7 @@ def select_bands_cmd(
     scene-wide maximum (eq. 6), summed (eq. 7), averaged over views, top k (eq. 8).
     """
     from brfgs.bands import plot_band_stats, select_bands
+    from brfgs.data import atomic
 
     sc = opt.load_scene(scene, downscale, value_range)
     out = out if out is not None else Path.cwd() / f"bands_{sc.name}"
@@ -48,7 +48,7 @@ def select_bands_cmd(
     sel = select_bands(sc, strategy, top=top, detect_max_px=detect_max_px, progress=not quiet, with_stats=True,
                        min_separation_nm=min_separation)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bands.json").write_text(json.dumps(sel.to_json(), indent=1))
+    atomic.write_json(out / "bands.json", sel.to_json())
     plot_band_stats(sel, out / "bands.png")
     typer.echo(format_selection(sel))
     typer.echo(f"\nwrote {out / 'bands.json'} and {out / 'bands.png'}")

@@ -3,7 +3,6 @@ analysis: an arbitrary view and a polar BRF map)."""
 
 from __future__ import annotations
 
-import json
 import os
 import platform
 from pathlib import Path
@@ -18,8 +17,9 @@ bench_app = typer.Typer(help="Speed and memory benchmarks; results go in BENCHMA
 
 
 def _write_json(path: Path, doc: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(doc, indent=1))
+    from brfgs.data import atomic
+
+    atomic.write_json(path, doc)
 
 
 def _int_list(text: str, field: str) -> list[int]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
@@ -22,6 +21,7 @@ def inspect_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Read and validate a scene; print frames, bands, split, angles, per-band noise/SNR and NaN counts."""
+    from brfgs.data import atomic
     from brfgs.data.summary import format_summary, plot_views, summarize
 
     sc = opt.load_scene(scene, downscale, value_range, split_seed)
@@ -29,7 +29,7 @@ def inspect_cmd(
     opt.check_output_dir(out, sc.root, overwrite=True)
     summary = summarize(sc, progress=not quiet)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary.to_json(), indent=1))
+    atomic.write_json(out / "summary.json", summary.to_json())
     plot_views(sc, out / "views_polar.png")
     typer.echo(format_summary(summary))
     typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")

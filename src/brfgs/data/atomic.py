@@ -10,6 +10,8 @@ import os
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 TMP_SUFFIX = ".partial"
 
 
@@ -39,3 +41,24 @@ def write_text(path: str | Path, text: str) -> Path:
 def write_json(path: str | Path, obj, indent: int | None = 1, sort_keys: bool = False) -> Path:
     """Write ``obj`` as JSON to ``path`` atomically."""
     return write_text(path, json.dumps(obj, indent=indent, sort_keys=sort_keys))
+
+
+@contextlib.contextmanager
+def open_text(path: str | Path, newline: str | None = None) -> Iterator:
+    """A text file handle for writing ``path`` atomically (renamed into place when the block ends)."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline=newline) as fh:
+        yield fh
+
+
+def save_npy(path: str | Path, array) -> Path:
+    """``numpy.save`` to ``path`` (ending in .npy) atomically."""
+    with atomic_path(path) as tmp:
+        np.save(tmp, array)
+    return Path(path)
+
+
+def save_figure(fig, path: str | Path, **savefig) -> Path:
+    """``fig.savefig`` to ``path`` atomically (format from the suffix)."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or None, **savefig)
+    return Path(path)

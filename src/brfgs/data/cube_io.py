@@ -16,6 +16,7 @@ import tifffile
 
 from brfgs.data.validation import header_matches, pixel_range
 from brfgs.errors import UserError
+from brfgs.data.atomic import atomic_path
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
@@ -38,8 +39,11 @@ def write_envi(path_hdr: str | Path, cube: np.ndarray, wavelengths_nm, fwhm_nm=N
         meta["fwhm"] = [f"{w:.4f}" for w in np.asarray(fwhm_nm, float)]
     if extra:
         meta.update(extra)
-    path_hdr.parent.mkdir(parents=True, exist_ok=True)
-    envi.save_image(str(path_hdr), cube, metadata=meta, interleave="bip", force=True, ext=".img", dtype=np.float32)
+    # both files under temporary names (SPy writes the .img beside the .hdr it is given), the data
+    # renamed into place first: a crash never leaves a header that describes missing or partial data
+    with atomic_path(path_hdr) as tmp_hdr, atomic_path(path_hdr.with_suffix(".img")) as tmp_img:
+        envi.save_image(str(tmp_hdr), cube, metadata=meta, interleave="bip", force=True, ext=".img", dtype=np.float32)
+        tmp_hdr.with_suffix(".img").replace(tmp_img)
     return path_hdr
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from brfgs.data import atomic
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.data.figures import pyplot
 from brfgs.data.scene import Scene
@@ -131,6 +132,6 @@ def plot_views(scene: Scene, path) -> None:
     ax.set_title(f"{scene.name}: view directions\n(zenith deg radial, azimuth clockwise from north)", fontsize=10)
     ax.legend(loc="upper left", bbox_to_anchor=(0.82, 1.12), fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    atomic.save_figure(fig, path, dpi=120)
     plt.close(fig)
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import zlib  # noqa: F401  (before anything that may pull pycolmap; file writing needs a sane zlib)
 from pathlib import Path
 
 import numpy as np
 from plyfile import PlyData, PlyElement
+
+from brfgs.data import atomic
 
 __all__ = ["DEFINITIONS", "write_points_ply", "write_outputs", "report_markdown", "strategies_table",
            "fmt_or_na"]
@@ -57,7 +58,8 @@ def write_points_ply(path: Path, points, colors, wavelengths_nm, band_indices, t
         v["error_px"] = error_px
     comments = ["brfgs sparse points (ENU metres)",
                 "bands " + " ".join(f"{int(b)}:{float(w):.2f}nm" for b, w in zip(band_indices, wavelengths_nm))]
-    PlyData([PlyElement.describe(v, "vertex")], comments=comments).write(str(path))
+    with atomic.atomic_path(path) as tmp:
+        PlyData([PlyElement.describe(v, "vertex")], comments=comments).write(str(tmp))
 
 
 def write_outputs(out: Path, scene, res, selection=None) -> None:
@@ -73,11 +75,11 @@ def write_outputs(out: Path, scene, res, selection=None) -> None:
             "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
             "frames": [{"name": f.name, "transform_matrix": res.c2w[i].tolist(), "registered": bool(res.registered[i])}
                        for i, f in enumerate(scene.frames)]}
-    (out / "cameras.json").write_text(json.dumps(cams, indent=1))
-    (out / "init_report.json").write_text(json.dumps(res.report, indent=1))
-    (out / "init_report.md").write_text(report_markdown(res.report))
+    atomic.write_json(out / "cameras.json", cams)
+    atomic.write_json(out / "init_report.json", res.report)
+    atomic.write_text(out / "init_report.md", report_markdown(res.report))
     if selection is not None:
-        (out / "bands.json").write_text(json.dumps(selection.to_json(), indent=1))
+        atomic.write_json(out / "bands.json", selection.to_json())
 
 
 def fmt_or_na(x, spec=".3g") -> str:

@@ -1,0 +1,70 @@
+"""A full disk (ENOSPC, injected) while a command writes its results: one line naming the path,
+exit status 3, and no half-written result file left behind, for inspect, select-bands, init,
+train, evaluate and render."""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import pytest
+import torch
+
+from brfgs.cli import main
+from brfgs.data import atomic
+from test_train_scene import make_plane_scene
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    torch.set_num_threads(1)
+    return make_plane_scene(tmp_path_factory.mktemp("io") / "scene", w=48, h=32, n_bands=12)
+
+
+@pytest.fixture(scope="module")
+def run(scene, tmp_path_factory):
+    out = tmp_path_factory.mktemp("io_run") / "run"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--threads", "1", "--stage1-steps", "4",
+                 "--stage2-steps", "2", "--quiet", "--no-evaluate"]) == 0
+    return out
+
+
+def _full_disk_for(monkeypatch, name_part: str):
+    """Fail the rename that would put a file whose name contains ``name_part`` into place, after its
+    temporary file was written (as when the disk fills during the write)."""
+    real = os.replace
+
+    def replace(src, dst):
+        if name_part in os.path.basename(str(dst)):
+            raise OSError(errno.ENOSPC, "No space left on device", str(dst))
+        return real(src, dst)
+
+    monkeypatch.setattr(atomic.os, "replace", replace)
+
+
+def _partials(folder):
+    return [p for p in folder.rglob("*") if atomic.TMP_SUFFIX in p.name]
+
+
+@pytest.mark.parametrize("command, target", [
+    (lambda s, r, o: ["inspect", str(s), "--out", str(o), "-q"], "summary.json"),
+    (lambda s, r, o: ["inspect", str(s), "--out", str(o), "-q"], "views_polar.png"),
+    (lambda s, r, o: ["select-bands", str(s), "--out", str(o), "-q"], "bands.json"),
+    (lambda s, r, o: ["init", str(s), str(o), "--poses", "known", "-q"], "points.ply"),
+    (lambda s, r, o: ["evaluate", str(r), "--quiet"], "metrics.json"),
+    (lambda s, r, o: ["evaluate", str(r), "--quiet"], ".img"),
+    (lambda s, r, o: ["render", str(r), "--view-zenith", "10", "--view-azimuth", "0", "-o", str(o), "-q"], "depth.npy"),
+    (lambda s, r, o: ["render", str(r), "--view-zenith", "10", "--view-azimuth", "0", "-o", str(o), "-q"], "cube.hdr"),
+])
+def test_full_disk_is_one_line_exit_3(scene, run, tmp_path, monkeypatch, capsys, command, target):
+    out = tmp_path / "out"
+    before = {p: p.stat().st_mtime_ns for p in run.rglob("*") if p.is_file()}
+    _full_disk_for(monkeypatch, target)
+    assert main(command(scene, run, out)) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("brfgs: error: ") and "No space left on device" in err
+    assert target in err
+    for folder in (out, run):
+        if folder.exists():
+            assert _partials(folder) == []
+            assert not [p for p in folder.rglob("*") if p.name.endswith(target) and p not in before]
