@@ -31,6 +31,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from brfgs.data import atomic
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.data.cameras import paper_view_angles, pose_from_view_angles
 from brfgs.data.cube_io import write_envi
@@ -137,12 +138,12 @@ def _cir_png(path: Path, cube: np.ndarray, wavelengths_nm: np.ndarray) -> None:
         p99 = np.percentile(band, 99)
         rgb[..., c] = band / p99 if p99 > 0 else 0.0
     img = (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8)
-    Image.fromarray(img, "RGB").save(path, format="PNG")
+    with atomic.atomic_path(path) as tmp:
+        Image.fromarray(img, "RGB").save(tmp, format="PNG")
 
 
 def _json_dump(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(obj, indent=1, sort_keys=False) + "\n")
+    atomic.write_text(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
 
 
 PROGRESS_FILE = ".simulate_progress.json"
@@ -150,9 +151,7 @@ PROGRESS_FILE = ".simulate_progress.json"
 
 def _write_progress(out: Path, cfg: SimConfig, done: list[str]) -> None:
     """Record the finished views (atomic replace) so an interrupted run can resume."""
-    tmp = out / (PROGRESS_FILE + ".tmp")
-    tmp.write_text(json.dumps({"config": cfg.to_json(), "done": done}))
-    tmp.replace(out / PROGRESS_FILE)
+    atomic.write_json(out / PROGRESS_FILE, {"config": cfg.to_json(), "done": done}, indent=None)
 
 
 def _prepare_out(out: Path, overwrite: bool, resume: bool, cfg: SimConfig) -> list[str]:
@@ -253,8 +252,8 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
         write_envi(out / "truth" / "images" / f"{name}.hdr", clean, wl, fwhm)
         (out / "truth" / "depth").mkdir(parents=True, exist_ok=True)
         (out / "truth" / "materials").mkdir(parents=True, exist_ok=True)
-        np.save(out / "truth" / "depth" / f"{name}.npy", depth.astype(np.float32))
-        np.save(out / "truth" / "materials" / f"{name}.npy", mat.astype(np.int16))
+        atomic.save_npy(out / "truth" / "depth" / f"{name}.npy", depth.astype(np.float32))
+        atomic.save_npy(out / "truth" / "materials" / f"{name}.npy", mat.astype(np.int16))
         if is_preview:
             preview_of[name] = obs
         done.append(name)
