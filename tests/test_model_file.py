@@ -136,3 +136,20 @@ def test_not_a_model_file(tmp_path):
         TrainedModel.load(other)
     with pytest.raises(UserError, match="no model.safetensors"):
         TrainedModel.load(tmp_path / "..")
+
+
+@pytest.mark.parametrize("meta", ["{}", "not json", "[1, 2]"])
+def test_render_and_evaluate_refuse_a_bad_model_file_in_one_line(tmp_path, capsys, meta):
+    from brfgs.cli import main
+
+    path = small_model().save(tmp_path / "good.safetensors")
+    run = tmp_path / "run"
+    run.mkdir()
+    bad = _rewrite(path, run / "model.safetensors", meta=meta)
+    for args in (["render", str(bad), "--view-zenith", "0", "--view-azimuth", "0", "-o", str(tmp_path / "r"), "-q"],
+                 ["evaluate", str(run), "--quiet"]):
+        capsys.readouterr()
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and str(bad) in err, err
+    assert not (tmp_path / "r").exists() and not (run / "metrics.json").exists()
