@@ -266,8 +266,9 @@ class Outcome:
         return out
 
 
-def run_case(seed: int, base: Path, work: Path) -> Outcome:
-    """Copy ``base``, mutate it (by ``seed``), run ``brfgs inspect`` on it, report what happened."""
+def run_case(seed: int, base: Path, work: Path, mutator=None) -> Outcome:
+    """Copy ``base``, mutate it (by ``seed``; with ``mutator`` when given, else one drawn), run
+    ``brfgs inspect`` on it, report what happened."""
     from brfgs.cli import main
 
     rng = random.Random(seed)
@@ -275,7 +276,7 @@ def run_case(seed: int, base: Path, work: Path) -> Outcome:
     shutil.rmtree(case, ignore_errors=True)
     scene = case / "scene"
     shutil.copytree(base, scene)
-    mutation = rng.choice(MUTATORS)(rng, scene)
+    mutation = (mutator or rng.choice(MUTATORS))(rng, scene)
     before = snapshot(scene)
     err, tb = io.StringIO(), None
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):

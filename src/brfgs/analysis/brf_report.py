@@ -95,7 +95,8 @@ def open_model_scene(tm: TrainedModel, scene_path: Path | None, required: bool) 
         return None
     kw = {"roi": tm.scene["roi"]} if tm.scene.get("roi") is not None else {}
     split_seed = int(tm.config.get("split_seed", 0))
-    return read_scene(root, downscale=int(tm.scene.get("downscale", 1) or 1), split_seed=split_seed, **kw)
+    return read_scene(root, downscale=int(tm.scene.get("downscale", 1) or 1), split_seed=split_seed,
+                      allow_outside_links=bool(tm.config.get("allow_outside_links", False)), **kw)
 
 
 @dataclass

@@ -30,7 +30,8 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None):
     cfg = lm.config
     root = Path(scene_path) if scene_path else Path(lm.scene["root"])
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
-                       value_range=tuple(cfg["value_range"]))
+                       value_range=tuple(cfg["value_range"]),
+                       allow_outside_links=bool(cfg.get("allow_outside_links", False)))
     where = root / "transforms.json"
     if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
         raise UserError("the scene's wavelengths differ from the model's", file=where, field="wavelengths_nm")

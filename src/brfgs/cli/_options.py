@@ -10,7 +10,7 @@ from brfgs.analysis.output import check_output_dir
 from brfgs.errors import UserError
 
 __all__ = ["SceneArg", "DownscaleOpt", "ValueRangeOpt", "SplitSeedOpt", "RunArg", "BackendOpt", "QuietOpt",
-           "OverwriteOpt", "parse_value_range", "load_scene", "check_output_dir"]
+           "OverwriteOpt", "AllowLinksOpt", "parse_value_range", "load_scene", "check_output_dir"]
 
 # The function bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
@@ -20,6 +20,8 @@ DownscaleOpt = typer.Option(1, "--downscale", min=1, help="Integer area-average 
 ValueRangeOpt = typer.Option("-0.5,10", "--value-range", metavar="LO,HI",
                              help="Plausible reflectance range; finite values outside it are an error.")
 SplitSeedOpt = typer.Option(0, "--split-seed", help="Seed of the deterministic 6:1 train/test split.")
+AllowLinksOpt = typer.Option(False, "--allow-outside-links",
+                             help="Read files that links in the scene folder lead to outside it (refused by default).")
 
 RunArg = typer.Argument(..., help="Run folder of `brfgs train` (with model.safetensors) or a model file.",
                         show_default=False)

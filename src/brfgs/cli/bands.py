@@ -27,6 +27,7 @@ def select_bands_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bands.json in --out."),
     downscale: int = opt.DownscaleOpt,
     value_range: str = opt.ValueRangeOpt,
+    allow_outside_links: bool = opt.AllowLinksOpt,
     detect_max_px: int = DetectMaxOpt,
     min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
                                          help="EFC strategies: chosen bands at least this far apart in wavelength "
@@ -42,7 +43,7 @@ def select_bands_cmd(
     from brfgs.bands import plot_band_stats, select_bands
     from brfgs.data import atomic
 
-    sc = opt.load_scene(scene, downscale, value_range)
+    sc = opt.load_scene(scene, downscale, value_range, allow_outside_links=allow_outside_links)
     out = out if out is not None else Path.cwd() / f"bands_{sc.name}"
     opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="bands.json")
     sel = select_bands(sc, strategy, top=top, detect_max_px=detect_max_px, progress=not quiet, with_stats=True,

@@ -56,6 +56,7 @@ def init_cmd(
     keep_database: bool = typer.Option(False, "--keep-database", help="Keep OUT/colmap/database.db."),
     downscale: int = opt.DownscaleOpt,
     value_range: str = opt.ValueRangeOpt,
+    allow_outside_links: bool = opt.AllowLinksOpt,
     verbose: bool = typer.Option(False, "--verbose", help="Show COLMAP's log."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
 ) -> None:
@@ -67,7 +68,7 @@ def init_cmd(
     if match_threads == 0:
         raise UserError("--match-threads must be >= 1 or -1 (all threads), got 0", field="match_threads")
     C.set_verbose(verbose)
-    sc = opt.load_scene(scene, downscale, value_range)
+    sc = opt.load_scene(scene, downscale, value_range, allow_outside_links=allow_outside_links)
     opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="init_report.json")
     cfg = InitConfig(max_features=max_features, min_inliers=min_inliers, num_threads=threads, match_threads=match_threads, seed=seed,
                      keep_database=keep_database, min_track_length=min_track, max_point_error_px=max_point_error,

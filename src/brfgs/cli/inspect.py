@@ -17,6 +17,7 @@ def inspect_cmd(
                              help="Folder for views_polar.png and summary.json [default: ./inspect_<scene>]."),
     downscale: int = opt.DownscaleOpt,
     value_range: str = opt.ValueRangeOpt,
+    allow_outside_links: bool = opt.AllowLinksOpt,
     split_seed: int = opt.SplitSeedOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -24,7 +25,7 @@ def inspect_cmd(
     from brfgs.data import atomic
     from brfgs.data.summary import format_summary, plot_views, summarize
 
-    sc = opt.load_scene(scene, downscale, value_range, split_seed)
+    sc = opt.load_scene(scene, downscale, value_range, split_seed, allow_outside_links=allow_outside_links)
     out = out if out is not None else Path.cwd() / f"inspect_{sc.name}"
     opt.check_output_dir(out, sc.root, overwrite=True)
     summary = summarize(sc, progress=not quiet)

@@ -14,7 +14,7 @@ import numpy as np
 import spectral.io.envi as envi
 import tifffile
 
-from brfgs.data.validation import header_matches, pixel_range
+from brfgs.data.validation import confined, header_matches, pixel_range
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
 
@@ -80,31 +80,72 @@ class CubeSource:
     band_axis_first: bool = False   # GeoTIFF stored as [B, H, W]
 
 
-def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str) -> CubeSource:
-    """Header-level checks of one cube; returns how to read it."""
+# ENVI data types brfgs reads (header "data type" code -> numpy type); byte order 0 or 1 is honoured.
+ENVI_DATA_TYPES = {"1": "uint8", "2": "int16", "3": "int32", "4": "float32", "5": "float64", "12": "uint16",
+                   "13": "uint32", "14": "int64", "15": "uint64"}
+ENVI_INTERLEAVES = ("bsq", "bil", "bip")
+
+
+def _header_int(hdr: dict, key: str, path: Path, lo: int) -> int:
+    """An integer header field written as digits, >= ``lo``; UserError naming the field otherwise."""
+    v = hdr.get(key)
+    text = v.strip() if isinstance(v, str) else None
+    if text is None or not text.isdigit() or len(text) > 12 or int(text) < lo:
+        raise UserError(f"expected an integer >= {lo}, found {v!r}", file=path, field=key)
+    return int(text)
+
+
+def check_envi_header(hdr: dict, path: Path, frame: str) -> tuple[int, int, int, int]:
+    """Strictly typed (lines, samples, header offset, bytes per value) of an ENVI header."""
+    for key in ("lines", "samples", "bands", "data type", "interleave"):
+        if key not in hdr:
+            raise UserError(f"frame '{frame}': required header field missing", file=path, field=key)
+    lines, samples = _header_int(hdr, "lines", path, 1), _header_int(hdr, "samples", path, 1)
+    _header_int(hdr, "bands", path, 1)
+    offset = _header_int(hdr, "header offset", path, 0) if "header offset" in hdr else 0
+    dtype = str(hdr["data type"]).strip()
+    if dtype not in ENVI_DATA_TYPES:
+        raise UserError(f"data type {hdr['data type']!r} not supported; expected one of {', '.join(ENVI_DATA_TYPES)}",
+                        file=path, field="data type")
+    if str(hdr["interleave"]).strip().lower() not in ENVI_INTERLEAVES:
+        raise UserError(f"interleave {hdr['interleave']!r} not supported; expected bsq, bil or bip", file=path,
+                        field="interleave")
+    if "byte order" in hdr and str(hdr["byte order"]).strip() not in ("0", "1"):
+        raise UserError(f"byte order must be 0 (little endian) or 1 (big endian), found {hdr['byte order']!r}",
+                        file=path, field="byte order")
+    return lines, samples, offset, np.dtype(ENVI_DATA_TYPES[dtype]).itemsize
+
+
+def _open_envi(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_links: bool) -> CubeSource:
+    """Header checks of an ENVI cube and its data file (size exactly as the header says)."""
+    n_bands = len(wl)
+    if not path.is_file():
+        raise UserError(f"frame '{frame}': cube header not found", file=path)
+    hdr = read_envi_header(path)
+    img = envi_image_path(path)
+    if img is None:
+        raise UserError(f"frame '{frame}': ENVI data file (.img) next to the header not found", file=path)
+    confined(img, tf.parent, img, None, allow_outside_links)
+    lines, samples, offset, nbytes = check_envi_header(hdr, path, frame)
+    header_matches(hdr, wl, path, tf, n_bands)
+    expected = offset + lines * samples * n_bands * nbytes
+    if img.stat().st_size != expected:
+        raise UserError(f"frame '{frame}': data file is {img.stat().st_size} bytes, the header describes "
+                        f"{expected} (header offset + lines x samples x bands x {nbytes} bytes)", file=img)
+    try:
+        envi.open(str(path), str(img))
+    except Exception as exc:
+        raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
+    return CubeSource("envi", path, lines, samples, n_bands)
+
+
+def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_links: bool = False) -> CubeSource:
+    """Header-level checks of one cube (``tf``: the scene's transforms.json); returns how to read it."""
     n_bands = len(wl)
     suffix = path.suffix.lower()
+    confined(path, tf.parent, path, None, allow_outside_links)
     if suffix == ".hdr":
-        if not path.is_file():
-            raise UserError(f"frame '{frame}': cube header not found", file=path)
-        hdr = read_envi_header(path)
-        img = envi_image_path(path)
-        if img is None:
-            raise UserError(f"frame '{frame}': ENVI data file (.img) next to the header not found", file=path)
-        for key in ("lines", "samples", "bands", "data type", "interleave"):
-            if key not in hdr:
-                raise UserError(f"frame '{frame}': required header field missing", file=path, field=key)
-        header_matches(hdr, wl, path, tf, n_bands)
-        lines, samples = int(hdr["lines"]), int(hdr["samples"])
-        try:
-            obj = envi.open(str(path), str(img))
-        except Exception as exc:
-            raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
-        expected = lines * samples * n_bands * obj.sample_size + int(hdr.get("header offset", 0))
-        if img.stat().st_size < expected:
-            raise UserError(f"frame '{frame}': data file is {img.stat().st_size} bytes, the header needs "
-                            f"{expected}", file=img)
-        return CubeSource("envi", path, lines, samples, n_bands)
+        return _open_envi(path, wl, tf, frame, allow_outside_links)
     if not path.is_file():
         raise UserError(f"frame '{frame}': cube file not found", file=path)
     if suffix == ".npy":

@@ -66,6 +66,7 @@ class Scene:
     full_intrinsics: Intrinsics | None = None
     _sources: list[CubeSource] = field(default_factory=list, repr=False)
     _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
+    allow_outside_links: bool = False       # files that links lead to outside the scene folder may be read
     invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
 
     # ----- geometry -------------------------------------------------------------------------------
@@ -159,7 +160,8 @@ class Scene:
         if not hdr.is_file():
             return None
         full_wl = self._file_wavelengths
-        src = open_cube(hdr, full_wl, self.root / TRANSFORMS, f"truth of {self.frames[i].name}")
+        src = open_cube(hdr, full_wl, self.root / TRANSFORMS, f"truth of {self.frames[i].name}",
+                        self.allow_outside_links)
         if (src.lines, src.samples) != (self._sources[i].lines, self._sources[i].samples):
             raise UserError(f"truth cube is {src.samples}x{src.lines}, the image "
                             f"{self._sources[i].samples}x{self._sources[i].lines}", file=hdr)
@@ -175,7 +177,8 @@ class Scene:
 # ---------------------------------------------------------------------------------------------------
 def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.ndarray | None = None,
                roi: tuple[int, int, int, int] | None = None,
-               value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0) -> Scene:
+               value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0,
+               allow_outside_links: bool = False) -> Scene:
     """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
 
     Args:
@@ -184,9 +187,11 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         roi: (x0, y0, w, h) region of interest in full-resolution pixels.
         value_range: plausible reflectance range; finite values outside it are an error.
         split_seed: seed of the deterministic 6:1 train/test split.
+        allow_outside_links: read files that links (the cubes, dark frames, calibration/, truth/,
+            transforms.json) lead to outside the scene folder; refused by default.
     """
     root = Path(path)
-    tf, meta = _load_transforms(root)
+    tf, meta = _load_transforms(root, allow_outside_links)
     if not isinstance(downscale, int) or downscale < 1:
         raise UserError(f"downscale must be an integer >= 1, got {downscale!r}", field="downscale")
     lo, hi = value_range
@@ -201,35 +206,43 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     sun_az = V.number(_required(meta, "sun_azimuth_deg", tf), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
-    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr)
+    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr, allow_outside_links)
     _assign_split(frames, split_seed)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
                         field="frames[].split")
 
-    sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, value_range)
+    sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, (value_range, allow_outside_links))
     scene = Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
                   fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
                   dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
                   value_range=(float(lo), float(hi)), split_seed=split_seed, full_intrinsics=full_intr,
-                  _sources=sources, _file_wavelengths=wl_all)
+                  _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
     return scene
 
 
-def _load_transforms(root: Path) -> tuple[Path, dict]:
-    """(path, parsed object) of the scene's transforms.json."""
+def _load_transforms(root: Path, allow_outside_links: bool = False) -> tuple[Path, dict]:
+    """(path, parsed object) of the scene's transforms.json (size, nesting depth and links checked)."""
     tf = root / TRANSFORMS
     if not root.is_dir():
         raise UserError("scene folder not found", file=root)
     if not tf.is_file():
         raise UserError(f"no {TRANSFORMS} in the scene folder", file=root)
+    V.confined(tf, root, tf, None, allow_outside_links)
+    if tf.stat().st_size > V.MAX_JSON_BYTES:
+        raise UserError(f"{tf.stat().st_size} bytes, more than the {V.MAX_JSON_BYTES} bytes a scene description "
+                        "may have", file=tf)
     try:
         meta = json.loads(tf.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"not valid JSON ({exc})", file=tf) from None
+    except RecursionError:
+        raise UserError(f"nested deeper than {V.MAX_JSON_DEPTH} levels", file=tf) from None
+    except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError, or an integer of > 4300 digits
+        raise UserError(f"not valid JSON ({str(exc)[:200]})", file=tf) from None
     if not isinstance(meta, dict):
         raise UserError("expected a JSON object at the top level", file=tf)
+    if V.json_depth(meta) > V.MAX_JSON_DEPTH:
+        raise UserError(f"nested deeper than {V.MAX_JSON_DEPTH} levels", file=tf)
     return tf, meta
 
 
@@ -286,8 +299,8 @@ def _crop_and_scale(full_intr: Intrinsics, roi, downscale: int) -> tuple[Intrins
     return intr.scaled(downscale), roi
 
 
-def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray,
-                 full_intr: Intrinsics) -> tuple[list[Frame], list[CubeSource]]:
+def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray, full_intr: Intrinsics,
+                 allow_outside_links: bool = False) -> tuple[list[Frame], list[CubeSource]]:
     """Frames of transforms.json (poses, nominal angles, requested split) and how to read their cubes."""
     if not isinstance(frames_meta, list):
         raise UserError("expected a list of frames", file=tf, field="frames")
@@ -298,21 +311,23 @@ def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray,
     sources: list[CubeSource] = []
     names: set[str] = set()
     for k, fm in enumerate(frames_meta):
-        frame, src = _read_frame(root, tf, k, fm, names, wl_all, full_intr)
+        frame, src = _read_frame(root, tf, k, fm, names, wl_all, (full_intr, allow_outside_links))
         frames.append(frame)
         sources.append(src)
     return frames, sources
 
 
 def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.ndarray,
-                full_intr: Intrinsics) -> tuple[Frame, CubeSource]:
-    """Frame ``k`` of transforms.json and its cube source; adds its name to ``names``."""
+                camera: tuple[Intrinsics, bool]) -> tuple[Frame, CubeSource]:
+    """Frame ``k`` of transforms.json and its cube source; adds its name to ``names``.
+    ``camera``: (full-resolution intrinsics, allow_outside_links)."""
+    full_intr, allow_outside_links = camera
     fld = f"frames[{k}]"
     if not isinstance(fm, dict):
         raise UserError("expected an object", file=tf, field=fld)
     if "file_path" not in fm:
         raise UserError("required field missing", file=tf, field=f"{fld}.file_path")
-    cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path")
+    cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path", allow_outside_links)
     name = Path(fm["file_path"]).stem
     if name in names:
         raise UserError(f"duplicate frame name {name!r}", file=tf, field=f"{fld}.file_path")
@@ -337,7 +352,7 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
     split = fm.get("split")
     if split is not None and split not in ("train", "test"):
         raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
-    src = open_cube(cube_path, wl_all, tf, name)
+    src = open_cube(cube_path, wl_all, tf, name, allow_outside_links)
     w, h = full_intr.w, full_intr.h
     if (src.lines, src.samples) != (h, w):
         raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
@@ -358,14 +373,16 @@ def _assign_split(frames: list[Frame], seed: int) -> None:
 
 
 def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[CubeSource],
-                value_range) -> tuple[np.ndarray, str]:
-    """σ_b [B]: std over dark frames and pixels; else ``dark_sigma``; else estimated from the images."""
+                reading: tuple) -> tuple[np.ndarray, str]:
+    """σ_b [B]: std over dark frames and pixels; else ``dark_sigma``; else estimated from the images.
+    ``reading``: (plausible value range, allow_outside_links); dark-frame values must lie in the range."""
+    value_range, allow = reading
     n_bands = len(wl)
     listed = meta.get("dark_frames")
     if listed is not None:
         if not isinstance(listed, list):
             raise UserError("expected a list of paths", file=tf, field="dark_frames")
-        paths = [V.path_inside(root, p, tf, f"dark_frames[{i}]") for i, p in enumerate(listed)]
+        paths = [V.path_inside(root, p, tf, f"dark_frames[{i}]", allow) for i, p in enumerate(listed)]
     else:
         paths = sorted((root / "calibration").glob("dark_*.hdr")) if (root / "calibration").is_dir() else []
     if paths:
@@ -373,8 +390,8 @@ def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[
         s2 = np.zeros(n_bands)
         n = 0
         for p in paths:
-            src = open_cube(p, wl, tf, f"dark frame {p.name}")
-            cube = read_block_averaged(src, np.arange(n_bands), None, 1, (-np.inf, np.inf), p.name)
+            src = open_cube(p, wl, tf, f"dark frame {p.name}", allow)
+            cube = read_block_averaged(src, np.arange(n_bands), None, 1, value_range, p.name)
             cube = cube.reshape(-1, n_bands).astype(np.float64)
             cube = cube[np.isfinite(cube).all(1)]
             s1 += cube.sum(0)

@@ -8,12 +8,19 @@ Every check raises :class:`brfgs.errors.UserError` naming the file and the field
 from __future__ import annotations
 
 import math
+import os
+import re
 from pathlib import Path
 
 import numpy as np
 
+from brfgs.data.paths import inside
 from brfgs.errors import UserError
 
+MAX_JSON_BYTES = 64 * 2**20   # transforms.json larger than this is refused before parsing
+MAX_JSON_DEPTH = 32           # nesting depth of transforms.json (the layout needs 4)
+CONTROL_CHARS = re.compile(r"[\x00-\x1f\x7f]")
+ALLOW_LINKS_HINT = "pass --allow-outside-links to read files that links lead to outside the scene"
 ORTHONORMAL_TOL = 1e-3
 WAVELENGTH_TOL_NM = 0.5
 MIN_FRAMES = 3
@@ -24,8 +31,13 @@ def number(value, file: Path, field: str, *, lo: float | None = None, hi: float 
     """``value`` as a finite float (or int) inside [lo, hi]; UserError otherwise."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise UserError(f"expected a number, found {value!r}", file=file, field=field)
-    if not math.isfinite(value):
-        raise UserError(f"expected a finite number, found {value!r}", file=file, field=field)
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:  # an integer beyond the float range
+        finite = False
+    if not finite:
+        shown = repr(value) if not isinstance(value, int) else f"an integer of {len(str(abs(value)))} digits"
+        raise UserError(f"expected a finite number, found {shown}", file=file, field=field)
     if integer and int(value) != value:
         raise UserError(f"expected an integer, found {value!r}", file=file, field=field)
     if (lo is not None and value < lo) or (hi is not None and value > hi):
@@ -82,19 +94,52 @@ def transform_matrix(value, file: Path, field: str) -> np.ndarray:
     return m
 
 
-def path_inside(root: Path, rel: object, file: Path, field: str) -> Path:
-    """Resolve ``rel`` against ``root``; refuse absolute paths and paths that lead outside ``root``."""
+def json_depth(obj) -> int:
+    """Nesting depth of a parsed JSON value (a scalar is 0), without recursion."""
+    depth, stack = 0, [(obj, 1)]
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, (dict, list)):
+            depth = max(depth, d)
+            stack.extend((v, d + 1) for v in (o.values() if isinstance(o, dict) else o))
+    return depth
+
+
+def path_text(rel: object, file: Path, field: str) -> str:
+    """A path string as written in a file: non-empty, no control characters, valid Unicode."""
     if not isinstance(rel, str) or not rel:
         raise UserError(f"expected a relative path string, found {rel!r}", file=file, field=field)
+    if CONTROL_CHARS.search(rel):
+        raise UserError(f"path {rel!r} contains control characters", file=file, field=field)
+    try:
+        rel.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UserError(f"path {rel!r} is not valid Unicode (a lone surrogate)", file=file, field=field) from None
+    return rel
+
+
+def confined(path: Path, root: Path, file: Path, field: str | None, allow_outside_links: bool) -> Path:
+    """``path`` unless, after following links, it lies outside the scene folder ``root``."""
+    if not allow_outside_links and not inside(path, root):
+        raise UserError(f"{path.name} leads outside the scene folder {root} (a link to "
+                        f"{Path(path).resolve()}); {ALLOW_LINKS_HINT}", file=file, field=field)
+    return path
+
+
+def path_inside(root: Path, rel: object, file: Path, field: str, allow_outside_links: bool = False) -> Path:
+    """``root / rel``; refuse absolute paths, paths that climb out of ``root`` with '..', and (unless
+    ``allow_outside_links``) paths that links lead out of ``root``."""
+    rel = path_text(rel, file, field)
     if Path(rel).is_absolute():
         raise UserError(f"absolute path {rel!r} not allowed: paths are relative to the scene folder",
                         file=file, field=field)
-    full = (root / rel).resolve()
-    try:
-        full.relative_to(root.resolve())
-    except ValueError:
-        raise UserError(f"path {rel!r} leads outside the scene folder {root}", file=file, field=field) from None
-    return full
+    if os.path.normpath(rel).split(os.sep)[0] == "..":
+        raise UserError(f"path {rel!r} leads outside the scene folder {root}", file=file, field=field)
+    full = root / rel
+    if not allow_outside_links and not inside(full, root):
+        raise UserError(f"path {rel!r} leads outside the scene folder {root} (through a link); "
+                        f"{ALLOW_LINKS_HINT}", file=file, field=field)
+    return full.resolve()
 
 
 def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transforms_file: Path,

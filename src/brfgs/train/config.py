@@ -49,6 +49,8 @@ class TrainConfig:
                                   "--stage1-cir-bands/--stage1-selected-bands-only")
     poses: str = _opt("auto", "Camera poses: known | sfm | auto (brfgs init).")
     downscale: int = _opt(1, "Integer area-average factor applied when reading cubes.")
+    allow_outside_links: bool = _opt(False, "Read files that links in the scene folder lead to outside it (refused "
+                                     "by default).", "--allow-outside-links/--confine-to-scene")
     value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes.")
     latent_dim: int = _opt(16, "Latent size d of the spectral autoencoder (<= 32).")
     ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
