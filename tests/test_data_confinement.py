@@ -78,3 +78,23 @@ def test_big_endian_cubes_read_the_same(tmp_path, rel):
     assert np.array_equal(big.dark_sigma, ref.dark_sigma)
     for i in range(len(ref.frames)):
         assert np.array_equal(big.load_image(i), ref.load_image(i))
+
+
+def test_dark_frame_mislabelled_big_endian_or_empty_is_refused(tmp_path):
+    """The issue's cases: a little-endian dark frame labelled ``byte order = 1`` (σ would be 1e37)
+    and a dark frame with 0 lines were accepted; both are one-line errors naming the dark frame."""
+    import re
+
+    scene = make_scene(tmp_path / "a", n_dark=2)
+    hdr = scene / "calibration" / "dark_00.hdr"
+    hdr.write_text(hdr.read_text().replace("byte order = 0", "byte order = 1"))
+    with pytest.raises(UserError, match="plausible reflectance range") as err:
+        read_scene(scene)
+    assert err.value.file == str(hdr)
+    scene = make_scene(tmp_path / "b", n_dark=2)
+    hdr = scene / "calibration" / "dark_01.hdr"
+    hdr.write_text(re.sub(r"lines = \d+", "lines = 0", hdr.read_text()))
+    (scene / "calibration" / "dark_01.img").write_bytes(b"")
+    with pytest.raises(UserError) as err:
+        read_scene(scene)
+    assert err.value.file == str(hdr) and err.value.field == "lines"
