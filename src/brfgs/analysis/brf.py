@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import spectral.io.envi as envi
+import torch
 from numpy.typing import ArrayLike
 from torch import Tensor
 from tqdm import tqdm
@@ -46,6 +47,7 @@ from brfgs.data.cube_io import envi_image_path
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
+from brfgs.model.rendering import pixel_spectra, spectral_features
 
 __all__ = [
     "MIN_ALPHA",
@@ -110,20 +112,18 @@ def roi_mean_from_view(
     """(mean reflectance [B], number of ROI pixels, ROI mask [H, W]) of one rendered view
     (plus the decoded ROI pixels [n, B] in mask order when ``return_pixels``).
 
-    Only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per pixel
-    and then averaged, as a sensor would average reflectance).
+    Spectra in the model's decode order (:func:`brfgs.model.rendering.pixel_spectra`); with order
+    "pixel" only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per
+    pixel and then averaged, as a sensor would average reflectance).
     """
-    rv = render(tm, camera_from_intrinsics(c2w, intr), features=lambda idx, oo: tm.gaussian_latent(omega_i, oo, idx),
-                backend=backend)
+    rv = render(tm, camera_from_intrinsics(c2w, intr), features=spectral_features(tm, omega_i), backend=backend)
     mask = roi_pixels(roi, rv.depth, rv.alpha, c2w, intr, min_alpha=min_alpha)
     n = int(mask.sum())
     if n == 0:
         empty = np.full(len(tm.wavelengths_nm), np.nan, np.float32)
         return (empty, 0, mask, np.zeros((0, len(empty)), np.float32)) if return_pixels else (empty, 0, mask)
-    lat = rv.image.numpy()[mask]
-    if tm.bg_latent is not None:
-        lat = lat + (1.0 - rv.alpha[mask])[:, None] * tm.bg_latent.numpy()[None]
-    spec = tm.decode(lat)                                     # [n, B]
+    m = torch.as_tensor(mask)
+    spec = pixel_spectra(tm, rv.image[m], torch.as_tensor(rv.alpha)[m])  # [n, B]
     if return_pixels:
         return spec.mean(0), n, mask, spec
     return spec.mean(0), n, mask

@@ -1,7 +1,8 @@
 """``brfgs evaluate OUT``: render every test view of a trained run and score it.
 
 Writes ``OUT/metrics.json`` (conventions.md schema: per view and mean psnr, ssim, lpips,
-sam, psnr_spectral; "observed" = the test images, "truth" = the clean cubes of
+sam, psnr_spectral, and the mean per view ring under "rings"; "observed" = the test images,
+"truth" = the clean cubes of
 ``<scene>/truth/images/<name>.hdr`` when present), ENVI renders
 ``OUT/eval/renders/<name>.hdr`` and side-by-side CIR PNGs with error maps
 ``OUT/eval/cir/<name>.png``.
@@ -25,20 +26,28 @@ from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
 
-def _scene_for(lm: TrainedModel, scene_path: str | Path | None):
+SPLITS = ("test", "validation")
+
+
+def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "test"):
     """The model's scene (or ``scene_path``), read as in training; UserError if it does not match."""
     cfg = lm.config
     root = Path(scene_path) if scene_path else Path(lm.scene["root"])
+    if split not in SPLITS:
+        raise UserError(f"split must be one of {SPLITS}, got {split!r}", field="split")
+    if split == "validation" and not cfg.get("validation", False):
+        raise UserError("the model was trained on every training view: there is no validation split "
+                        "(train with --validation)", field="split")
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
-                       value_range=tuple(cfg["value_range"]),
+                       value_range=tuple(cfg["value_range"]), validation=bool(cfg.get("validation", False)),
                        allow_outside_links=bool(cfg.get("allow_outside_links", False)))
     where = root / "transforms.json"
     if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
         raise UserError("the scene's wavelengths differ from the model's", file=where, field="wavelengths_nm")
     if [f.name for f in scene.frames] != [f["name"] for f in lm.scene["frames"]]:
         raise UserError("the scene's frames differ from those the model was trained on", file=where, field="frames")
-    if not scene.test_indices:
-        raise UserError("the scene has no test views", file=where, field="frames")
+    if not scene.indices_of(split):
+        raise UserError(f"the scene has no {split} views", file=where, field="frames")
     return scene
 
 
@@ -89,9 +98,26 @@ def _settings(lm: TrainedModel, scene, backend: str) -> dict:
     }
 
 
+def metrics_file(split: str = "test") -> str:
+    """Name of the metrics file of ``split`` in a run folder."""
+    return "metrics.json" if split == "test" else f"metrics_{split}.json"
+
+
+def ring_means(views: list[dict], rings: dict[str, str]) -> dict:
+    """{ring: {"n_views", mean metrics}} of per-view metric dicts (``rings``: frame name -> ring)."""
+    out = {}
+    for r in sorted({rings[v["name"]] for v in views}, key=float):
+        sel = [v for v in views if rings[v["name"]] == r]
+        out[r] = {"n_views": len(sel), **M.mean_metrics(sel)}
+    return out
+
+
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
-                 write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE) -> dict:
-    """Evaluate the trained model of ``out_dir`` on its test views; returns the metrics dict.
+                 write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE,
+                 split: str = "test") -> dict:
+    """Evaluate the trained model of ``out_dir`` on its ``split`` views ("test", or "validation" for
+    a run trained with ``--validation``); writes and returns the metrics dict (metrics.json, or
+    metrics_validation.json).
 
     ``backend`` None: the rasterizer backend the model was trained with (recorded in
     metrics.json), so that the evaluation at the end of ``brfgs train`` and a later
@@ -103,17 +129,20 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
         raise UserError(f"no {model_file}: train first (brfgs train SCENE {out})", file=out)
     lm = TrainedModel.load(mpath)
     backend = backend or lm.config.get("backend", "auto")
-    scene = _scene_for(lm, scene_path)
+    scene = _scene_for(lm, scene_path, split)
     views = {"observed": [], "truth": []}
     t0 = time.perf_counter()
-    for i in tqdm(scene.test_indices, desc="evaluate", leave=False, disable=not progress):
-        for against, m in _score_view(lm, scene, i, backend, out if write_images else None).items():
+    images_out = out if write_images and split == "test" else None
+    for i in tqdm(scene.indices_of(split), desc=f"evaluate ({split})", leave=False, disable=not progress):
+        for against, m in _score_view(lm, scene, i, backend, images_out).items():
             views[against].append(m)
+    rings = scene.rings()
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
-              "split": scene.split_record(), "settings": _settings(lm, scene, backend),
-              "against": {k: {"mean": M.mean_metrics(v), "views": v} for k, v in views.items() if v}}
+              "evaluated_split": split, "split": scene.split_record(), "settings": _settings(lm, scene, backend),
+              "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings), "views": v}
+                          for k, v in views.items() if v}}
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
-    atomic.write_json(out / "metrics.json", result)
+    atomic.write_json(out / metrics_file(split), result)
     return result
 
 
@@ -138,4 +167,9 @@ def summary_lines(result: dict) -> list[str]:
 
         lines.append(f"{result['model']:<28} vs {against:<8}: PSNR {f('psnr', '.2f')} dB  SSIM {f('ssim', '.3f')}  "
                      f"SAM {f('sam', '.4f')} rad  PSNR-spectral {f('psnr_spectral', '.2f')} dB  LPIPS {f('lpips', '.3f')}")
+        rings = block.get("rings") or {}
+        if len(rings) > 1:
+            lines.append(" " * 29 + "per ring: " + ", ".join(
+                f"{r}° {v['psnr']:.2f} dB" + (f"/{v['sam']:.4f}" if v.get("sam") is not None else "")
+                for r, v in rings.items() if v.get("psnr") is not None))
     return lines

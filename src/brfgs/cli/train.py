@@ -54,17 +54,18 @@ def register(app: typer.Typer) -> None:
         options: dict | None = None,
     ) -> None:
         """Train BRF-GS (or a baseline) on SCENE into OUT; rerun to resume; Ctrl-C keeps a checkpoint."""
-        from brfgs.analysis.evaluate import evaluate_run, summary_lines
+        from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
         from brfgs.train import train
 
         cfg = build_config(options, config)
         path = train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1, log=_echo(quiet))
         typer.echo(f"model: {path}")
         if evaluate:
-            res = evaluate_run(out, scene, backend=cfg.backend, progress=not quiet)
-            for line in summary_lines(res):
-                typer.echo(line)
-            typer.echo(f"metrics: {out / 'metrics.json'}")
+            for split in ("validation", "test") if cfg.validation else ("test",):
+                res = evaluate_run(out, scene, backend=cfg.backend, progress=not quiet, split=split)
+                for line in summary_lines(res):
+                    typer.echo(f"[{split}] {line}" if cfg.validation else line)
+                typer.echo(f"metrics: {out / metrics_file(split)}")
 
     @app.command("evaluate")
     def evaluate_cmd(
@@ -73,16 +74,19 @@ def register(app: typer.Typer) -> None:
         backend: str = typer.Option(None, "--backend", help="Rasterizer backend: auto | torch | cpu | cuda "
                                     "(default: the one the model was trained with, so the digits match training's)."),
         images: bool = typer.Option(True, "--images/--no-images", help="Write ENVI renders and CIR PNGs."),
+        split: str = typer.Option("test", "--split", help="Views to score: test (metrics.json) or validation "
+                                  "(metrics_validation.json; runs trained with --validation)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
-        """Render every test view; write OUT/metrics.json, ENVI renders and CIR comparison PNGs."""
-        from brfgs.analysis.evaluate import evaluate_run, summary_lines
+        """Render every test view; write OUT/metrics.json (per view, per view ring and mean), ENVI renders and
+        CIR comparison PNGs."""
+        from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
 
-        res = evaluate_run(out, scene, backend=backend, write_images=images, progress=not quiet)
+        res = evaluate_run(out, scene, backend=backend, write_images=images, progress=not quiet, split=split)
         for line in summary_lines(res):
             typer.echo(line)
-        typer.echo(f"metrics: {out / 'metrics.json'}")
-        if images:
+        typer.echo(f"metrics: {out / metrics_file(split)}")
+        if images and split == "test":
             typer.echo(f"renders: {out / 'eval' / 'renders'}  CIR comparisons: {out / 'eval' / 'cir'}")
 
     @config_command(app, "ablate", TrainConfig, skip=STUDY_FIELDS)
@@ -90,7 +94,10 @@ def register(app: typer.Typer) -> None:
         scene: Path = typer.Argument(..., help="Scene folder."),
         out: Path = typer.Argument(..., help="Folder for the study's runs and tables."),
         study: str = typer.Option(..., "--study", help="kernels (Table 3) | training (Table 4) | bands (Table 2) | "
-                                  "baselines (Table 1)."),
+                                  "baselines (Table 1) | additions (each addition beyond the paper removed from the "
+                                  "options, and added to the paper's method)."),
+        only: str = typer.Option(None, "--only", help="Comma-separated run names of the study to train now (the "
+                                 "tables hold the finished ones), e.g. default,paper,no_lr_spec."),
         quiet: bool = typer.Option(False, "--quiet"),
         options: dict | None = None,
     ) -> None:
@@ -98,6 +105,9 @@ def register(app: typer.Typer) -> None:
         the training options apply to every run (the study sets variant, components, joint, band strategy)."""
         from brfgs.workflows.ablate import ablate
 
-        res = ablate(scene, out, study, build_config(options), progress=not quiet, log=_echo(quiet))
-        typer.echo(Path(res["paths"]["md"]).read_text())
-        typer.echo(f"tables: {res['paths']['md']}  {res['paths']['csv']}")
+        names = [x.strip() for x in only.split(",") if x.strip()] if only else None
+        res = ablate(scene, out, study, build_config(options), progress=not quiet, log=_echo(quiet), only=names)
+        for key in ("paths", "paths_validation"):
+            if key in res:
+                typer.echo(Path(res[key]["md"]).read_text())
+                typer.echo(f"tables: {res[key]['md']}  {res[key]['csv']}")

@@ -24,11 +24,13 @@ from brfgs.data import validation as V
 from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
+from brfgs.data.splits import ring_name, stratified_pick, view_rings
 from brfgs.errors import UserError
 
 TRANSFORMS = "transforms.json"
 DEFAULT_VALUE_RANGE = (-0.5, 10.0)
 TEST_EVERY = 7  # 6 train : 1 test
+VALIDATION_EVERY = 6  # of the training views, 1 in 6 for validation (when asked for)
 
 
 @dataclass
@@ -40,7 +42,7 @@ class Frame:
     c2w: np.ndarray                 # [4, 4] OpenGL camera-to-world
     view_zenith_deg: float
     view_azimuth_deg: float
-    split: str                      # "train" | "test"
+    split: str                      # "train" | "validation" | "test"
     split_given: bool = False       # True if transforms.json fixed it
 
 
@@ -63,6 +65,7 @@ class Scene:
     roi: tuple[int, int, int, int] | None = None   # (x0, y0, w, h) in full-resolution pixels
     value_range: tuple[float, float] = DEFAULT_VALUE_RANGE
     split_seed: int = 0
+    validation: bool = False                # 1 in 6 training views held out as the validation split
     full_intrinsics: Intrinsics | None = None
     _sources: list[CubeSource] = field(default_factory=list, repr=False)
     _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
@@ -110,11 +113,33 @@ class Scene:
     def test_indices(self) -> list[int]:
         return [i for i, f in enumerate(self.frames) if f.split == "test"]
 
+    @property
+    def validation_indices(self) -> list[int]:
+        return [i for i, f in enumerate(self.frames) if f.split == "validation"]
+
+    def indices_of(self, split: str) -> list[int]:
+        """Frame indices of ``split`` ("train", "validation" or "test")."""
+        return [i for i, f in enumerate(self.frames) if f.split == split]
+
+    def rings(self) -> dict[str, str]:
+        """{frame name: view ring} (ring = view zenith class, e.g. "0", "18", "58"; brfgs.data.splits)."""
+        labels = view_rings([f.view_zenith_deg for f in self.frames])
+        return {f.name: ring_name(r) for f, r in zip(self.frames, labels)}
+
     def split_record(self) -> dict:
-        """The split as recorded in run folders and metrics files."""
-        return {"seed": self.split_seed, "rule": "6:1 train:test, per-frame 'split' honoured",
-                "train": [self.frames[i].name for i in self.train_indices],
-                "test": [self.frames[i].name for i in self.test_indices]}
+        """The split as recorded in run folders (split.json) and metrics files."""
+        rec = {"seed": self.split_seed,
+               "rule": "6:1 train:test stratified by view ring (test views from every ring in proportion), "
+                       "per-frame 'split' honoured" + ("; validation: 1 in 6 training views, stratified, "
+                                                       "seed + 1" if self.validation else ""),
+               "train": [self.frames[i].name for i in self.train_indices],
+               "test": [self.frames[i].name for i in self.test_indices]}
+        if self.validation:
+            rec["validation"] = [self.frames[i].name for i in self.validation_indices]
+        rings = self.rings()
+        rec["rings"] = {r: {s: [n for n in rec.get(s, []) if rings[n] == r] for s in ("train", "validation", "test")
+                            if s in rec} for r in sorted(set(rings.values()), key=float)}
+        return rec
 
     @property
     def truth_dir(self) -> Path | None:
@@ -178,7 +203,7 @@ class Scene:
 def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.ndarray | None = None,
                roi: tuple[int, int, int, int] | None = None,
                value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0,
-               allow_outside_links: bool = False) -> Scene:
+               allow_outside_links: bool = False, validation: bool = False) -> Scene:
     """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
 
     Args:
@@ -186,7 +211,8 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         bands: indices of the bands to keep (default all).
         roi: (x0, y0, w, h) region of interest in full-resolution pixels.
         value_range: plausible reflectance range; finite values outside it are an error.
-        split_seed: seed of the deterministic 6:1 train/test split.
+        split_seed: seed of the deterministic 6:1 train/test split (stratified by view ring).
+        validation: also hold out 1 in 6 training views as the "validation" split.
         allow_outside_links: read files that links (the cubes, dark frames, calibration/, truth/,
             transforms.json) lead to outside the scene folder; refused by default.
     """
@@ -207,7 +233,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
     frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr, allow_outside_links)
-    _assign_split(frames, split_seed)
+    _assign_split(frames, split_seed, validation)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
                         field="frames[].split")
@@ -217,7 +243,8 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                   fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
                   dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
-                  value_range=(float(lo), float(hi)), split_seed=split_seed, full_intrinsics=full_intr,
+                  value_range=(float(lo), float(hi)), split_seed=split_seed, validation=validation,
+                  full_intrinsics=full_intr,
                   _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
     return scene
 
@@ -360,16 +387,23 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
     return Frame(name, cube_path, c2w, vz, va, split or "", split is not None), src
 
 
-def _assign_split(frames: list[Frame], seed: int) -> None:
-    """Deterministic 6:1 split; frames with a given split keep it."""
+def _assign_split(frames: list[Frame], seed: int, validation: bool = False) -> None:
+    """Deterministic 6:1 split stratified by view ring (:mod:`brfgs.data.splits`); frames with a
+    given split keep it. With ``validation``, 1 in 6 of the training frames become "validation"."""
     n = len(frames)
+    rings = view_rings([f.view_zenith_deg for f in frames])
     n_test_target = max(1, round(n / TEST_EVERY))
     n_test_given = sum(f.split == "test" for f in frames)
     free = [i for i, f in enumerate(frames) if not f.split_given]
-    order = np.random.default_rng(seed).permutation(len(free))
     n_test_free = min(max(0, n_test_target - n_test_given), max(0, len(free) - 1))
-    for rank, j in enumerate(order):
-        frames[free[j]].split = "test" if rank < n_test_free else "train"
+    test = set(stratified_pick(free, rings, n_test_free, seed))
+    for i in free:
+        frames[i].split = "test" if i in test else "train"
+    if validation:
+        train = [i for i, f in enumerate(frames) if f.split == "train"]
+        n_val = min(max(1, round(len(train) / VALIDATION_EVERY)), len(train) - 1)
+        for i in stratified_pick(train, rings, n_val, seed + 1):
+            frames[i].split = "validation"
 
 
 def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[CubeSource],

@@ -5,8 +5,15 @@ depth and normal maps.
 benchmarks and every later feature call. Per Gaussian it evaluates the appearance head for the
 sun (paper eq. 12; :mod:`brfgs.model.features`), rasterizes (premultiplied,
 :func:`brfgs.render.rasterize`), composites the learned background with (1 − α) and decodes
-each pixel with the spectral decoder D_φ (eq. 13). Training uses the same pieces
-(:func:`rasterize_features`, :func:`composite_background`, :func:`decode_image`) with gradients.
+with the spectral decoder D_φ in one of two orders (the model's ``decode`` option):
+
+- ``"gaussian"`` — eq. 13 as published: r_k = D_φ(z_k(ω_i, ω_o)) per Gaussian, then the spectra
+  are alpha-blended (B channels rasterized);
+- ``"pixel"`` — the latents are alpha-blended and each pixel decoded, D_φ(Σ_k w_k z_k) (d
+  channels rasterized). With a nonlinear decoder the two differ.
+
+Training uses the same pieces (:func:`rasterize_features`, :func:`composite_background`,
+:func:`decode_image`) with gradients.
 """
 
 from __future__ import annotations
@@ -90,7 +97,7 @@ class RenderedView:
     """One rendered view (numpy planes unless said otherwise).
 
     image: raw premultiplied features [H, W, C] (torch); latent: background-composited latent
-    [H, W, d] (None for custom features or the CIR variant); cube: reflectance [H, W, B] (None
+    [H, W, d] (None for custom features, the CIR variant or decode order "gaussian"); cube: reflectance [H, W, B] (None
     unless decoded); cir: CIR composite [H, W, 3] in [0, 1]-ish (None unless decoded, or always for
     the CIR variant); alpha [H, W]; depth [H, W] (m along the optical axis, 0 where nothing);
     normal [H, W, 3] (unit, world, facing the camera, 0 where α = 0; None unless asked).
@@ -133,14 +140,40 @@ def _unit_normals(normal: Tensor | None) -> np.ndarray | None:
     return np.where(nn > 1e-8, n / np.maximum(nn, 1e-12), 0.0).astype(np.float32)
 
 
+def spectral_features(model: "TrainedModel", omega_i: Tensor, order: str | None = None) -> FeaturesFn:
+    """Per-Gaussian features whose rendering gives the model's spectra for the sun ω_i [3]:
+    latents [n, d] (decode order "pixel") or decoded spectra [n, B] ("gaussian", eq. 13)."""
+    order = order or model.decode_order
+
+    def features(idx: Tensor, omega_o: Tensor) -> Tensor:
+        lat = model.gaussian_latent(omega_i, omega_o, idx)  # [n, d]
+        return decode_image(model.decoder, lat) if order == "gaussian" else lat
+
+    return features
+
+
+@torch.no_grad()
+def pixel_spectra(model: "TrainedModel", image: Tensor, alpha: Tensor, order: str | None = None) -> np.ndarray:
+    """Reflectance [..., B] of rendered pixels ``image`` [..., C] (premultiplied features of
+    :func:`spectral_features`) with coverage ``alpha`` [...]: the background composited, then
+    decoded per pixel (order "pixel"), or the decoded background spectrum composited ("gaussian")."""
+    order = order or model.decode_order
+    bg = model.bg_latent
+    if order == "gaussian":
+        bg_spec = None if bg is None else decode_image(model.decoder, bg.to(image.dtype)[None])[0]  # [B]
+        return composite_background(image, alpha, bg_spec).numpy().astype(np.float32)
+    return _decode_hits(model, composite_background(image, alpha, bg), alpha)
+
+
 def _decode_hits(model: "TrainedModel", latent: Tensor, alpha: Tensor) -> np.ndarray:
-    """Decoded cube [H, W, B]; pixels showing only the background share one decoded spectrum."""
+    """Decoded cube [..., B] of latents [..., d]; pixels showing only the background share one
+    decoded spectrum."""
     bg = model.bg_latent
     hit = alpha > 0
     if bg is None or bool(hit.all()):
         return decode_image(model.decoder, latent).numpy()
     bg_spec = decode_image(model.decoder, bg.to(latent.dtype)[None])[0].numpy()  # [B]
-    cube = np.broadcast_to(bg_spec, latent.shape[:2] + bg_spec.shape).copy()
+    cube = np.broadcast_to(bg_spec, tuple(latent.shape[:-1]) + bg_spec.shape).copy()
     if bool(hit.any()):
         cube[hit.numpy()] = decode_image(model.decoder, latent[hit]).numpy()
     return cube
@@ -158,12 +191,14 @@ def render(
     normals: bool = False,
     cull: bool = True,
     backend: str = "auto",
+    decode_order: str | None = None,
 ) -> RenderedView:
     """Render ``model`` from ``cam`` under a sun (default: the acquisition's).
 
     With ``features`` None the appearance head's latent is rendered, the learned background
-    composited, and (``decode``) every pixel decoded to reflectance and the CIR composite formed;
-    the CIR variant renders its CIR colours directly. With ``features(idx, omega_o) -> [n, C]``
+    composited, and (``decode``) decoded to reflectance in the model's decode order (or
+    ``decode_order``: "pixel" | "gaussian", see the module docstring) and the CIR composite
+    formed; the CIR variant renders its CIR colours directly. With ``features(idx, omega_o) -> [n, C]``
     any per-Gaussian quantity (kernel contributions, NBAR latents, ...) is rasterized instead
     and returned raw in ``image``. ``cull`` drops Gaussians that cannot touch the image first
     (same image, less work).
@@ -171,13 +206,20 @@ def render(
     t0 = time.perf_counter()
     omega_i = model.sun_direction(sun_zenith_deg, sun_azimuth_deg)  # [3]
     custom = features is not None
+    order = "pixel" if not model.spectral else (decode_order or model.decode_order)
+    if order not in ("pixel", "gaussian"):
+        raise ValueError(f"decode_order must be pixel or gaussian, got {order!r}")
+    by_gaussian = not custom and decode and order == "gaussian"
     if not custom:
-        def features(idx: Tensor, omega_o: Tensor) -> Tensor:
-            return model.gaussian_latent(omega_i, omega_o, idx)
+        features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel") if model.spectral else (
+            lambda idx, omega_o: model.gaussian_latent(omega_i, omega_o, idx))
     out = _rasterize_subset(model, cam, features, normals, cull, backend)
     t1 = time.perf_counter()
     rv = RenderedView(image=out.image, alpha=out.alpha.numpy(), depth=out.depth.numpy(), normal=_unit_normals(out.normal))
-    if not custom and model.spectral:
+    if by_gaussian:
+        rv.cube = pixel_spectra(model, out.image, out.alpha, "gaussian")
+        rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
+    elif not custom and model.spectral:
         latent = composite_background(out.image, out.alpha, model.bg_latent)  # [H, W, d]
         rv.latent = latent.numpy().astype(np.float32)
         if decode:

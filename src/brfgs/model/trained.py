@@ -126,6 +126,12 @@ class TrainedModel:
     def bg_latent(self) -> Tensor | None:
         return self.extra.get("bg_latent") if self.spectral else None
 
+    @property
+    def decode_order(self) -> str:
+        """"pixel" (blend latents, decode pixels) or "gaussian" (eq. 13: decode Gaussians, blend
+        spectra), as trained (models older than the option: "pixel")."""
+        return str(self.config.get("decode", "pixel")) if self.spectral else "pixel"
+
     def sun_direction(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None) -> Tensor:
         """ω_i [3] (float32) for the given sun or the acquisition's."""
         z = self.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg

@@ -1,7 +1,10 @@
 """Training options (one dataclass; the CLI's options are generated from it) and presets.
 
-Presets: ``fast`` (CPU, minutes for a 128-px scene), ``paper`` (GPU-scale, 3DGS-like
-30k-step schedule), ``tiny`` (tests: a few steps).
+Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
+``paper`` (the published method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast``
+(the published method on the ``fast`` schedule: what the additions are measured against on a
+CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS` names each choice beyond the paper with
+the option values that switch it off (docs/method.md).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from brfgs.errors import UserError
 from brfgs.model.densify_config import DensifyConfig
 
 VARIANTS = ("brf", "sh", "neural", "cir")
+DECODE_ORDERS = ("pixel", "gaussian")
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -36,7 +40,9 @@ class TrainConfig:
     smoothness priors, SH-3 stage-1 colours, learned shading normals, ``lr_spec``.
     """
 
-    preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes), paper (GPU-scale), tiny (tests).")
+    preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), paper (the "
+                       "published method, GPU-scale schedule), paper-fast (the published method, fast schedule), "
+                       "tiny (tests).")
     variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "
                         "feature + view direction -> MLP), cir (3DGS with SH-3 on CIR composites, no spectra).")
     components: tuple[str, ...] = _opt(("iso", "vol", "geo", "spec"), "Hybrid kernel terms of brf, e.g. iso,vol,geo,spec "
@@ -87,6 +93,9 @@ class TrainConfig:
     lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
     lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")
     lr_background: float = _opt(1e-2, "Learning rate of the learned backgrounds.")
+    learn_background: bool = _opt(True, "Learn the background colour / latent seen where the Gaussians do not cover a "
+                                  "pixel, or keep it fixed at the training images' mean (as 3DGS's fixed colour).",
+                                  "--learn-background/--fixed-background")
     finetune_decoder: bool = _opt(False, "Also optimise the spectral decoder in stage 2.",
                                   "--finetune-decoder/--frozen-decoder")
     centred_kernels: bool = _opt(True, "Train the hybrid head in the centred form z'_iso + sum_j z_j (K_j - K_j(nadir)) "
@@ -105,11 +114,18 @@ class TrainConfig:
     backend: str = _opt("auto", "Rasterizer backend: auto | torch | cpu | cuda.")
     threads: int = _opt(0, "CPU threads (0 = leave the default: all).")
     seed: int = _opt(0, "Seed of every random choice (view order, patches, splits of Gaussians, autoencoder).")
-    split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split.")
+    split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split (stratified by view ring).")
+    validation: bool = _opt(False, "Hold out 1 in 6 training views (stratified by view ring) as a validation split "
+                            "and score them (metrics_validation.json): choose settings on these, never on test views.",
+                            "--validation/--no-validation")
+    decode: str = _opt("pixel", "Spectral decoding order: pixel (alpha-blend latents, decode each pixel) or gaussian "
+                       "(paper eq. 13 as published: decode each Gaussian's latent for the view, blend spectra).")
 
     def validate(self) -> "TrainConfig":
         if self.variant not in VARIANTS:
             raise UserError(f"variant must be one of {VARIANTS}, got {self.variant!r}", field="variant")
+        if self.decode not in DECODE_ORDERS:
+            raise UserError(f"decode must be one of {DECODE_ORDERS}, got {self.decode!r}", field="decode")
         if not 1 <= self.latent_dim <= 32:
             raise UserError(f"latent_dim must be in 1..32, got {self.latent_dim}", field="latent_dim")
         if self.stage1_steps < 0 or self.stage2_steps < 0:
@@ -190,14 +206,58 @@ def _check_types(cls, d: dict, source: str | None, prefix: str = "") -> None:
             raise UserError(f"expected {getattr(tp, '__name__', str(tp))}, got {v!r}", file=source, field=prefix + name)
 
 
+@dataclass(frozen=True)
+class Addition:
+    """A choice of brfgs beyond the published method: ``paper`` = the option values of the paper's
+    method (switching the addition off), ``stage`` = the first training stage it changes (1 or 2;
+    a stage-2 addition can reuse another run's stage 1), ``reason`` = why brfgs adds it."""
+
+    paper: dict
+    stage: int
+    reason: str
+
+
+# Every addition beyond the paper (docs/method.md gives each one's paper section and measured effect).
+ADDITIONS: dict[str, Addition] = {
+    "stage1_cir_bands": Addition(dict(stage1_cir_bands=False), 1, "the EFC bands may all lie in one spectral region; "
+                                 "the CIR bands carry the visible texture that stage-1 geometry should explain"),
+    "depth_normal": Addition(dict(lambda_normal=0.0), 1, "ties each Gaussian's normal to the rendered depth's "
+                             "gradient (2DGS/GOF-style), for usable normal maps and specular normals"),
+    "flatness": Addition(dict(lambda_flat=0.0), 1, "flattened Gaussians have a defined normal (the smallest axis) for "
+                         "the Cook-Torrance kernel"),
+    "depth_smoothness": Addition(dict(lambda_depth_smooth=0.0), 1, "edge-aware smoothness of the rendered inverse "
+                                 "depth keeps water and flat ground as surfaces instead of floaters"),
+    "sh3_stage1": Addition(dict(stage1_sh_degree=0), 1, "3DGS's SH-3 colours in stage 1 let view-dependent radiance "
+                           "be explained by appearance, not by moving geometry"),
+    "fill_points": Addition(dict(init_fill_points=0), 1, "a 2.5-D surface through the sparse SfM points seeds Gaussians "
+                            "where SfM finds few features (water, shadows)"),
+    "learned_normals": Addition(dict(learn_normals=False, lambda_normal_smooth=0.0), 2, "the smallest axis of a "
+                                "volumetric crown Gaussian is a poor shading normal for the specular kernel"),
+    "lr_spec": Addition(dict(lr_spec=1e-2), 2, "a glint needs a specular latent ~10x the iso latent, seen in few "
+                        "views: at the common latent rate it cannot grow in the steps available"),
+    "centred_kernels": Addition(dict(centred_kernels=False), 2, "trains eq. 12 in a centred form (same function "
+                                "class) because K_Li is about -1 everywhere, making z_iso and z_geo collinear"),
+    "learned_background": Addition(dict(learn_background=False), 1, "pixels beyond the Gaussians (oblique views' far "
+                                   "field) get a learned colour/latent instead of a fixed one"),
+    "pixel_decode": Addition(dict(decode="gaussian"), 2, "blends latents and decodes each pixel, instead of decoding "
+                             "each Gaussian and blending spectra (eq. 13): d instead of B channels rasterized"),
+}
+
+# The published method: every addition off (paper sections 3.1-3.3).
+PAPER_METHOD: dict = {k: v for a in ADDITIONS.values() for k, v in a.paper.items()}
+
+# The paper's GPU-scale schedule (3DGS's 30k steps per stage, whole images, no Gaussian cap).
+PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000,
+                            stage2_steps=30_000,
+                            densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
+                                         max_gaussians=3_000_000),
+                            checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0)
+
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {
     "fast": {},
-    "paper": dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000, stage2_steps=30_000,
-                  densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
-                               max_gaussians=3_000_000),
-                  checkpoint_every=2000, patch_px=0, stage2_rays=0, init_fill_points=0, max_gaussians_per_px=0.0,
-                  stage1_cir_bands=False),
+    "paper": {**PAPER_SCHEDULE, **PAPER_METHOD},
+    "paper-fast": dict(PAPER_METHOD),
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
                  init_fill_points=500,
                  densify=dict(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000, max_gaussians=5000),

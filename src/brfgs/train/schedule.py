@@ -44,4 +44,7 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
                 lrs["decoder." + k] = c.lr_decoder
     if phase == Phase.CIR:
         lrs.update({"sh": c.lr_colors, "bg_colors": c.lr_background})
+    if not c.learn_background:  # fixed at its initial value (the training images' mean)
+        lrs.pop("bg_colors", None)
+        lrs.pop("bg_latent", None)
     return lrs

@@ -13,8 +13,8 @@ from torch import Tensor
 
 from brfgs.model.camera import Camera
 from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
-from brfgs.model.rendering import composite_background, decode_image, rasterize_features
-from brfgs.render import RenderOutput
+from brfgs.model.rendering import composite_background, decode_image, frustum_subset, rasterize_features
+from brfgs.render import RenderOutput, rasterize
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
 from brfgs.train.losses import (depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
@@ -45,14 +45,15 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
               phase: Phase) -> tuple[int, tuple[int, int, int, int] | None]:
     """Next training view (epoch-wise permutation) and an optional patch window.
 
-    Patches of ``patch_px`` for large images; in the joint phase, square patches of about
-    ``stage2_rays`` pixels (every pixel is decoded there, for the D-SSIM term).
+    Patches of ``patch_px`` for large images; in the joint phase, and in stage 2 with decode
+    order "gaussian", square patches of about ``stage2_rays`` pixels (every pixel is scored there:
+    for the D-SSIM term, or because the spectra are blended, not decoded per pixel).
     """
     if not state.perm:
         state.perm = torch.randperm(len(train_indices), generator=state.gen).tolist()
     i = train_indices[state.perm.pop()]
     P = cfg.patch_px
-    if phase == Phase.JOINT and cfg.stage2_rays > 0:
+    if cfg.stage2_rays > 0 and (phase == Phase.JOINT or (phase == Phase.STAGE2 and cfg.decode == "gaussian")):
         side = max(int(math.sqrt(cfg.stage2_rays)), 16)
         P = min(P, side) if P > 0 else side
     if P > 0 and width * height > P * P:
@@ -137,12 +138,39 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
         pred = state.decoder.decode(lat.reshape(h * w, -1)[idx])  # [R, B]
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
-    pred = decode_image(state.decoder, lat)
-    loss = stage2_loss(pred, target, valid, c.beta_cos)
-    if phase == Phase.JOINT and c.alpha_dssim > 0:
+    return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
+
+
+def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tensor, batch: Batch,
+                   greg: Tensor | None) -> tuple[Tensor, float]:
+    """Loss of the reflectance image ``pred`` [H, W, B] (eqs. 25–27, + D-SSIM on the stage-1 bands
+    when joint) and its PSNR."""
+    loss = stage2_loss(pred, batch.target, batch.valid, cfg.beta_cos)
+    if phase == Phase.JOINT and cfg.alpha_dssim > 0:
         sel = state.stage1_bands()
-        loss = loss + c.alpha_dssim * (stage1_loss(pred[..., sel], target[..., sel], valid, 1.0))
-    return _plus(loss, greg), masked_psnr(pred, target, valid)
+        loss = loss + cfg.alpha_dssim * (stage1_loss(pred[..., sel], batch.target[..., sel], batch.valid, 1.0))
+    return _plus(loss, greg), masked_psnr(pred, batch.target, batch.valid)
+
+
+def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None) -> RenderOutput:
+    """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]."""
+    g = state.gaussians
+    if subset is None:
+        return rasterize_features(g, feats, cam, backend)
+    return rasterize(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam.viewmat,
+                     cam.K, cam.width, cam.height, backend=backend)
+
+
+def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera) -> tuple[Tensor, Tensor | None]:
+    """Eq. 13 as published: each Gaussian's latent decoded to its spectrum, ([n, B], subset [n] or
+    None). With geometry frozen (stage 2) only the Gaussians that can touch the view are decoded."""
+    subset = None
+    if not phase.trains_geometry:
+        g = state.gaussians
+        with torch.no_grad():
+            subset = frustum_subset(g.means.detach(), g.scales.detach().max(1).values, cam)
+        lat = lat[subset]
+    return decode_image(state.decoder, lat), subset  # [n, B]
 
 
 def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, phase_steps: int,
@@ -151,15 +179,21 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
 
     ``phase_steps``: steps of the phase (the surface priors start at ``normal_start`` of it);
     ``nbrs`` [N, 8]: neighbour indices for the stage-2 normal smoothness (when it is on).
+    With decode order "gaussian" the spectral phases blend decoded spectra (eq. 13), else
+    latents decoded per pixel.
     """
     c = cfg
     surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0
     use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
     feats = _features(state, cfg, phase, batch.cam)
+    by_gaussian = c.decode == "gaussian" and phase in (Phase.STAGE2, Phase.JOINT)
+    subset = None
+    if by_gaussian:
+        feats, subset = _decoded_features(state, phase, feats, batch.cam)
     n_feat = feats.shape[-1]
     if use_priors:  # depth + normal (+ depth²) channels for the surface priors
         feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
-    out = rasterize_features(state.gaussians, feats, batch.cam, c.backend)
+    out = _rasterize(state, feats, batch.cam, c.backend, subset)
     image = out.image[..., :n_feat]
     greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
     if phase.renders_colors:
@@ -168,6 +202,10 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
         return StepResult(_plus(loss, greg), masked_psnr(pred, batch.target, batch.valid), out)
     if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in state.gaussians:
         greg = c.lambda_normal_smooth * normal_smoothness_loss(state.gaussians["normals"], nbrs)
-    lat = composite_background(image, out.alpha, state.extra["bg_latent"])
-    loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg)
+    if by_gaussian:
+        bg = decode_image(state.decoder, state.extra["bg_latent"][None])[0]  # [B]
+        loss, psnr = _score_spectra(state, cfg, phase, composite_background(image, out.alpha, bg), batch, greg)
+    else:
+        lat = composite_background(image, out.alpha, state.extra["bg_latent"])
+        loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg)
     return StepResult(loss, psnr, out)

@@ -71,7 +71,7 @@ class Trainer:
         check_outside(self.out, self.scene_path)
         self.folder.prepare(self.cfg, self.overwrite)
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
-                                value_range=tuple(self.cfg.value_range),
+                                value_range=tuple(self.cfg.value_range), validation=self.cfg.validation,
                                 allow_outside_links=self.cfg.allow_outside_links)
         st = self.state
         t0 = time.perf_counter()

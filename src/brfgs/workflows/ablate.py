@@ -9,8 +9,14 @@ Studies (each run is an ordinary, resumable training run folder ``OUT/<run>``):
   geometry columns (detected features per view, matching success rate) from the init report.
 - ``baselines`` (Table 1): 3DGS on CIR composites, SH-3 in latent space, neural per-Gaussian
   decoder (MS-Splatting style), BRF-GS.
-Tables are written as ``OUT/table_<study>.md`` and ``.csv``; metrics are against the observed
-test views and, when the scene has truth/, against the clean truth.
+- ``additions``: brfgs's additions beyond the paper (:data:`brfgs.train.config.ADDITIONS`): the
+  given options ("default"), each addition removed from them ("no_<name>"), the paper's method
+  ("paper": every addition off) and each addition added to it ("paper_<name>"). Additions that
+  change stage 2 only reuse the stage 1 of "default" / "paper".
+Tables are written as ``OUT/table_<study>.md`` and ``.csv`` with the mean and per-view-ring
+metrics; they are against the observed test views and, when the scene has truth/, against the
+clean truth. With ``--validation`` every run holds out its validation views and the tables
+``OUT/table_<study>_validation.*`` score those (choose settings there, not on the test views).
 """
 
 from __future__ import annotations
@@ -20,16 +26,17 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-from brfgs.analysis.evaluate import evaluate_run
+from brfgs.analysis.evaluate import evaluate_run, metrics_file
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
 from brfgs.data import atomic
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train import TrainConfig, train
+from brfgs.train.config import ADDITIONS, PAPER_METHOD
 from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
-STUDIES = ("kernels", "training", "bands", "baselines")
+STUDIES = ("kernels", "training", "bands", "baselines", "additions")
 FULL = ("iso", "vol", "geo", "spec")
 
 
@@ -52,7 +59,29 @@ def _runs(study: str, base: TrainConfig) -> list[tuple[str, str, TrainConfig, st
                 ("full", "BRF-GS (Ours)", full, None)]
     if study == "bands":
         return [(f"bands_{s}", STRATEGY_LABELS.get(s, s), replace(full, band_strategy=s), None) for s in TABLE2_STRATEGIES]
+    if study == "additions":
+        return _addition_runs(full)
     raise UserError(f"unknown study {study!r}; choose one of {', '.join(STUDIES)}", field="study")
+
+
+def _addition_runs(base: TrainConfig) -> list[tuple[str, str, TrainConfig, str | None]]:
+    """The additions study: base, base minus each addition, the paper's method, paper plus each."""
+    paper = replace(base, **PAPER_METHOD)
+    out = [("default", "brfgs (given options, every addition on)", base, None)]
+    for name, a in ADDITIONS.items():
+        out.append((f"no_{name}", f"default without {name}", replace(base, **a.paper), "default" if a.stage == 2 else None))
+    out.append(("paper", "paper's method (every addition off)", paper, None))
+    for name, a in ADDITIONS.items():
+        back = {k: getattr(base, k) for k in a.paper}
+        out.append((f"paper_{name}", f"paper + {name}", replace(paper, **back), "paper" if a.stage == 2 else None))
+    # runs equal to another (an addition already off in the given options) are dropped
+    seen, unique = {}, []
+    for r in out:
+        key = r[2].to_json()
+        if key not in seen:
+            seen[key] = r[0]
+            unique.append(r)
+    return unique
 
 
 def _fmt(v, fmt):
@@ -61,15 +90,20 @@ def _fmt(v, fmt):
 
 def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = True, log=print,
            only: list[str] | None = None) -> dict:
-    """Run (or resume) every run of ``study`` and write its tables; returns {"rows": [...], "paths": {...}}."""
+    """Run (or resume) every run of ``study`` and write its tables; returns {"rows": [...], "paths": {...}}
+    (with ``base.validation``: also "rows_validation" / "paths_validation")."""
     out = Path(out_dir)
     check_outside(out, scene_path)
     out.mkdir(parents=True, exist_ok=True)
     runs = _runs(study, base)
+    unknown = sorted(set(only or ()) - {r[0] for r in runs})
+    if unknown:
+        raise UserError(f"no run(s) {unknown} in study {study!r}; its runs are {', '.join(r[0] for r in runs)}",
+                        field="--only")
+    splits = ("test", "validation") if base.validation else ("test",)
     # runs that others start from go first
     order = sorted(runs, key=lambda r: 0 if any(o[3] == r[0] for o in runs) else 1)
-    rows = []
-    results = {}
+    results: dict[str, dict[str, dict]] = {s: {} for s in splits}
     for name, label, cfg, src in order:
         if only and name not in only:
             continue
@@ -80,34 +114,51 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
             if from_stage1 is not None and not from_stage1.is_file():
                 raise UserError(f"run {src} has no stage-1 checkpoint", file=from_stage1)
             train(scene_path, rdir, cfg, progress=progress, from_stage1=from_stage1, log=log)
-        if not (rdir / "metrics.json").is_file() or (rdir / "metrics.json").stat().st_mtime < (rdir / MODEL_FILE).stat().st_mtime:
-            evaluate_run(rdir, scene_path, backend=cfg.backend, progress=progress)
-        results[name] = json.loads((rdir / "metrics.json").read_text())
-    for name, label, cfg, src in runs:
-        if name not in results:
-            continue
-        r = results[name]
-        row = {"run": name, "setting": label}
-        for against in ("observed", "truth"):
-            if against in r["against"]:
-                m = r["against"][against]["mean"]
-                for k in ("psnr", "ssim", "lpips", "sam", "psnr_spectral"):
-                    row[f"{k}_{against}"] = m.get(k)
-        if study == "bands":
-            rep_path = out / name / "init" / "init_report.json"
-            if rep_path.is_file():
-                g = json.loads(rep_path.read_text()).get("geometry", {})
-                row["detected_features_per_view"] = g.get("mean_detected_features_per_view")
-                row["matching_success_rate"] = g.get("matching_success_rate")
-        timing = json.loads((out / name / "run.json").read_text()).get("timings_s", {})
-        row["train_seconds"] = sum(v for k, v in timing.items() if k != "total_this_session")
-        rows.append(row)
-    paths = write_tables(out, study, rows, scene_path)
-    return {"rows": rows, "paths": paths}
+        for split in splits:
+            mfile = rdir / metrics_file(split)
+            if not mfile.is_file() or mfile.stat().st_mtime < (rdir / MODEL_FILE).stat().st_mtime:
+                evaluate_run(rdir, scene_path, backend=cfg.backend, progress=progress, split=split)
+            results[split][name] = json.loads(mfile.read_text())
+    res: dict = {}
+    for split in splits:
+        rows = [_row(study, out, name, label, results[split][name]) for name, label, _, _ in runs
+                if name in results[split]]
+        key = "" if split == "test" else "_validation"
+        res["rows" + key] = rows
+        res["paths" + key] = write_tables(out, study + key, rows, scene_path)
+    return res
+
+
+def _row(study: str, out: Path, name: str, label: str, r: dict) -> dict:
+    """One table row: mean and per-ring metrics against observed (and truth), timings, Table 2 geometry."""
+    row = {"run": name, "setting": label}
+    for against in ("observed", "truth"):
+        if against in r["against"]:
+            block = r["against"][against]
+            for k in ("psnr", "ssim", "lpips", "sam", "psnr_spectral"):
+                row[f"{k}_{against}"] = block["mean"].get(k)
+            for ring, m in (block.get("rings") or {}).items():
+                row[f"psnr_{against}_ring{ring}"] = m.get("psnr")
+                row[f"sam_{against}_ring{ring}"] = m.get("sam")
+    if study == "bands":
+        rep_path = out / name / "init" / "init_report.json"
+        if rep_path.is_file():
+            g = json.loads(rep_path.read_text()).get("geometry", {})
+            row["detected_features_per_view"] = g.get("mean_detected_features_per_view")
+            row["matching_success_rate"] = g.get("matching_success_rate")
+    timing = json.loads((out / name / "run.json").read_text()).get("timings_s", {})
+    row["train_seconds"] = sum(v for k, v in timing.items() if k != "total_this_session")
+    return row
+
+
+def _rings(rows: list[dict], against: str) -> list[str]:
+    """View rings with a PSNR column for ``against``, in zenith order."""
+    pre = f"psnr_{against}_ring"
+    return sorted({k[len(pre):] for r in rows for k in r if k.startswith(pre)}, key=float)
 
 
 def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
-    """OUT/table_<study>.csv (every column) and .md (the paper's columns)."""
+    """OUT/table_<study>.csv (every column) and .md (the paper's columns and PSNR per view ring)."""
     cols = sorted({k for r in rows for k in r}, key=lambda k: (k not in ("run", "setting"), k))
     csv_path = out / f"table_{study}.csv"
     with atomic.atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
@@ -119,15 +170,18 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
     refs = ["observed"] + (["truth"] if has_truth else [])
     lines = [f"# Study '{study}' on {Path(scene_path).name}", "",
              "PSNR/SSIM on CIR composites (dB, data range 1); SAM in radians over all bands; "
-             "'observed' = the noisy test images, 'truth' = the clean simulated cubes.", ""]
+             "'observed' = the noisy held-out images, 'truth' = the clean simulated cubes; "
+             "'PSNR z°' = mean CIR PSNR of the held-out views of the view ring at zenith z.", ""]
     for against in refs:
-        head = ["Model setting", "PSNR↑", "SSIM↑", "SAM↓"]
+        rings = _rings(rows, against)
+        head = ["Model setting", "PSNR↑", "SSIM↑", "SAM↓"] + [f"PSNR {r}°" for r in rings]
         if study == "bands":
             head += ["Detected feature points ↑", "Matching success rate ↑"]
         lines += [f"## Against {against}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in rows:
             cells = [r["setting"], _fmt(r.get(f"psnr_{against}"), ".2f"), _fmt(r.get(f"ssim_{against}"), ".3f"),
                      _fmt(r.get(f"sam_{against}"), ".4f")]
+            cells += [_fmt(r.get(f"psnr_{against}_ring{g}"), ".2f") for g in rings]
             if study == "bands":
                 cells += [_fmt(r.get("detected_features_per_view"), ".0f"),
                           "–" if r.get("matching_success_rate") is None else f"{100 * r['matching_success_rate']:.1f}%"]
