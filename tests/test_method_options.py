@@ -1,0 +1,167 @@
+"""Issue 15's machinery: ring-stratified splits and the validation split, per-ring metrics, the
+decode order (eq. 13 as published vs per-pixel decoding), the paper preset and the additions study."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import fields
+
+import numpy as np
+import pytest
+import torch
+
+from brfgs.cli import main
+from brfgs.data import read_scene
+from brfgs.data.splits import apportion, stratified_pick, view_rings
+from brfgs.model import TrainedModel, render
+from brfgs.train.config import ADDITIONS, PAPER_METHOD, PRESETS, TrainConfig, preset
+from brfgs.workflows.ablate import _runs
+from test_train_scene import make_plane_scene
+
+AIR_BRF_ZENITHS = [0.0] + [18.0] * 12 + [23.0] * 12 + [38.0] * 12 + [58.0] * 12
+
+
+# ----------------------------------------------------------------------------------- splits
+def test_view_rings_cluster_zeniths():
+    z = [0.0, 17.8, 18.2, 22.8, 23.2, 38.0, 57.7, 58.3]
+    assert view_rings(z).tolist() == [0.0, 18.0, 18.0, 23.0, 23.0, 38.0, 58.0, 58.0]
+
+
+def test_apportion_largest_remainder():
+    rng = np.random.default_rng(0)
+    assert apportion([1, 12, 12, 12, 12], 7, rng) in ([0, 2, 2, 2, 1], [0, 2, 2, 1, 2], [0, 2, 1, 2, 2],
+                                                      [0, 1, 2, 2, 2])
+    assert apportion([2, 3], 10, rng) == [2, 3]  # never more than a group holds
+    assert apportion([5, 5], 0, rng) == [0, 0]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_test_views_come_from_every_ring(seed):
+    rings = view_rings(AIR_BRF_ZENITHS)
+    test = stratified_pick(list(range(49)), rings, 7, seed)
+    assert len(test) == 7 and len(set(test)) == 7
+    for ring in (18.0, 23.0, 38.0, 58.0):
+        assert 1 <= sum(rings[i] == ring for i in test) <= 2
+    assert test == stratified_pick(list(range(49)), rings, 7, seed)  # deterministic
+
+
+def test_scene_split_validation_and_rings(tmp_path):
+    root = make_plane_scene(tmp_path / "s", w=16, h=12, n_bands=4, n_views=25)
+    plain = read_scene(root)
+    val = read_scene(root, validation=True)
+    assert plain.test_indices == val.test_indices  # the validation split never moves test views
+    assert not set(val.validation_indices) & set(val.test_indices)
+    assert set(val.validation_indices) <= set(plain.train_indices)
+    assert len(val.validation_indices) == round(len(plain.train_indices) / 6)
+    rec = val.split_record()
+    assert set(rec["rings"]) == {"0", "18", "38"}  # 25 views: nadir + 12 at 18° + 12 at 38°
+    for ring in ("18", "38"):  # 4 test views in all: two per ring
+        assert len(rec["rings"][ring]["test"]) == 2
+    assert "validation" not in plain.split_record()
+
+
+# ----------------------------------------------------------------------------- presets
+def test_paper_preset_is_the_published_method():
+    p, f = preset("paper"), preset("fast")
+    for name, add in ADDITIONS.items():
+        for k, v in add.paper.items():
+            assert getattr(p, k) == v, (name, k)
+            assert getattr(f, k) != v, f"the fast preset should have addition {name} on ({k})"
+    assert p.decode == "gaussian" and not p.learn_normals and p.stage1_sh_degree == 0
+    assert p.lambda_normal == p.lambda_flat == p.lambda_depth_smooth == 0
+    assert p.lr_spec == p.lr_latent and not p.stage1_cir_bands
+    fast_paper = preset("paper-fast")
+    for fld in fields(TrainConfig):  # paper-fast = fast's schedule + the paper's method
+        if fld.name in PAPER_METHOD:
+            assert getattr(fast_paper, fld.name) == PAPER_METHOD[fld.name]
+        elif fld.name != "preset":
+            assert getattr(fast_paper, fld.name) == getattr(f, fld.name), fld.name
+    assert set(PRESETS) >= {"fast", "paper", "paper-fast", "tiny"}
+
+
+def test_additions_study_runs():
+    base = preset("tiny")
+    runs = {name: (cfg, src) for name, _, cfg, src in _runs("additions", base)}
+    assert runs["default"][0].to_json() == TrainConfig.from_dict(base.to_dict()).to_json()
+    assert runs["paper"][0].decode == "gaussian"
+    for name, add in ADDITIONS.items():
+        no, plus = runs[f"no_{name}"], runs[f"paper_{name}"]
+        for k, v in add.paper.items():
+            assert getattr(no[0], k) == v and getattr(plus[0], k) == getattr(base, k)
+        # everything else as in its reference run
+        diff = {f.name for f in fields(TrainConfig) if getattr(no[0], f.name) != getattr(base, f.name)}
+        assert diff == {k for k, v in add.paper.items() if getattr(base, k) != v}
+        assert no[1] == ("default" if add.stage == 2 else None) and plus[1] == ("paper" if add.stage == 2 else None)
+
+
+# ------------------------------------------------------------------------- decode order
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("dec")
+    scene = make_plane_scene(root / "scene", w=64, h=48, n_bands=8)
+    out = root / "run"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "20",
+                 "--decode", "gaussian", "--validation", "--threads", "1", "--quiet"]) == 0
+    return scene, out
+
+
+class _Linear(torch.nn.Module):
+    """A linear 'decoder' z -> z W + b: blending commutes with it, so both decode orders agree."""
+
+    def __init__(self, d: int, b: int):
+        super().__init__()
+        g = torch.Generator().manual_seed(0)
+        self.w = torch.randn(d, b, generator=g) * 0.1
+        self.b = torch.rand(b, generator=g) * 0.2
+
+    def decode(self, z):
+        return z @ self.w + self.b
+
+
+def test_decode_orders_agree_for_a_linear_decoder(trained):
+    _, out = trained
+    tm = TrainedModel.load(out / "model.safetensors")
+    assert tm.decode_order == "gaussian"
+    tm.decoder = _Linear(tm.gaussians.latent_dim, 8)
+    cam = tm.cameras[3]
+    a = render(tm, cam, decode_order="gaussian", backend="torch")
+    b = render(tm, cam, decode_order="pixel", backend="torch")
+    assert a.latent is None and b.latent is not None
+    np.testing.assert_allclose(a.cube, b.cube, atol=2e-5)
+    # and, by hand: blended per-Gaussian spectra plus (1 - alpha) x decoded background
+    np.testing.assert_allclose(b.cube, b.latent @ tm.decoder.w.numpy() + tm.decoder.b.numpy(), atol=2e-5)
+
+
+def test_decode_orders_differ_for_the_trained_decoder(trained):
+    _, out = trained
+    tm = TrainedModel.load(out / "model.safetensors")
+    a = render(tm, tm.cameras[3], backend="torch")  # the model's order: gaussian
+    b = render(tm, tm.cameras[3], decode_order="pixel", backend="torch")
+    assert np.isfinite(a.cube).all() and a.cube.shape == b.cube.shape
+    assert 0 < np.abs(a.cube - b.cube).max() < 0.2
+
+
+def test_validation_metrics_and_rings(trained):
+    scene, out = trained
+    val = json.loads((out / "metrics_validation.json").read_text())
+    test = json.loads((out / "metrics.json").read_text())
+    assert val["evaluated_split"] == "validation" and test["evaluated_split"] == "test"
+    names_val = [v["name"] for v in val["against"]["truth"]["views"]]
+    assert names_val == val["split"]["validation"] and not set(names_val) & set(test["split"]["test"])
+    assert set(names_val).isdisjoint(test["split"]["train"])
+    rings = test["against"]["truth"]["rings"]
+    assert sum(r["n_views"] for r in rings.values()) == len(test["split"]["test"])
+    for ring, m in rings.items():
+        views = [v["psnr"] for v in test["against"]["truth"]["views"] if v["name"] in test["split"]["rings"][ring]["test"]]
+        assert m["psnr"] == pytest.approx(np.mean(views))
+
+
+def test_validation_split_needs_a_validation_run(trained, tmp_path, capsys):
+    root, _ = trained
+    out = tmp_path / "r"
+    assert main(["train", str(root), str(out), "--preset", "tiny", "--stage1-steps", "2", "--stage2-steps", "2",
+                 "--threads", "1", "--quiet", "--no-evaluate"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(out), "--split", "validation", "--quiet"]) == 2
+    assert "--validation" in capsys.readouterr().err
