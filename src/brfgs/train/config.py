@@ -99,7 +99,7 @@ class TrainConfig:
     finetune_decoder: bool = _opt(False, "Also optimise the spectral decoder in stage 2.",
                                   "--finetune-decoder/--frozen-decoder")
     centred_kernels: bool = _opt(True, "Train the hybrid head in the centred form z'_iso + sum_j z_j (K_j - K_j(nadir)) "
-                                 "(same function class as eq. 12; saved in eq. 12 form).")
+                                 "(same function class as eq. 12; saved in eq. 12 form).", "--centred-kernels/--plain-kernels")
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
