@@ -127,6 +127,12 @@ def bench_analysis(
     view()  # warm-up: numba loads its compiled kernels
     all_, cpu = _timed(view, repeats)
     rv = view()
+    orders = {}  # the same view in both decode orders (docs/method.md), same run
+    if tm.spectral:
+        for order in ("pixel", "gaussian"):
+            t, _ = _timed(lambda o=order: render(tm, cam, normals=True, backend=backend, decode_order=o), repeats)
+            orders[order] = statistics.median(t)
+        orders["gaussian_over_pixel"] = orders["gaussian"] / orders["pixel"]
     c = tm.scene_centre_m()
     h = roi_half_m
     roi = PolygonROI(np.array([[c[0] - h, c[1] - h], [c[0] + h, c[1] - h], [c[0] + h, c[1] + h], [c[0] - h, c[1] + h]]))
@@ -143,7 +149,8 @@ def bench_analysis(
         "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
         "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
         "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
-                   "median_cpu_s": statistics.median(cpu), "repeats": repeats, "split_s": rv.timings_s},
+                   "median_cpu_s": statistics.median(cpu), "repeats": repeats, "split_s": rv.timings_s,
+                   "decode_order": tm.decode_order, "median_s_by_decode_order": orders},
         "polar_map": {"directions": polar_azimuths * polar_zeniths, "bands": len(bi),
                       "roi_camera_px": roi_size_px or auto_roi_size(tm, 1.1 * roi.radius_m),
                       "median_s": statistics.median(pts), "all_s": pts, "cpu_s": pcs,

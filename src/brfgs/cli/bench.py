@@ -131,6 +131,10 @@ def bench_analysis_cmd(
                f"other processes' load; CPU seconds are this process's)")
     typer.echo(f"arbitrary view {r['size'][0]}x{r['size'][1]}x{res['bands']}: median {r['median_s'] * 1000:.0f} ms wall, "
                f"{r['median_cpu_s'] * 1000:.0f} ms CPU (of {r['repeats']})")
+    o = r.get("median_s_by_decode_order") or {}
+    if o:
+        typer.echo(f"decode order (model: {r['decode_order']}): pixel {o['pixel'] * 1000:.0f} ms, gaussian "
+                   f"{o['gaussian'] * 1000:.0f} ms wall (x{o['gaussian_over_pixel']:.2f}, same run)")
     typer.echo(f"polar map {p['directions']} directions x {p['bands']} bands: {p['median_s']:.1f} s wall, "
                f"{p['median_cpu_s']:.1f} s CPU ({p['per_direction_ms']:.1f} ms wall per direction)")
     if json_path is not None:
