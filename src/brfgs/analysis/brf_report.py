@@ -186,7 +186,12 @@ def _principal_plane_truth(r: _BRFRun, s: np.ndarray, pp: B.ROIBRF) -> tuple[np.
         **err, "step_deg": tr.step_deg, "size_px": tr.size, "spp": tr.spp,
         "model": "principal-plane curve interpolated to the truth directions",
         "truth_peak_signed_zenith_deg": {f"{w:.0f}": B.curve_peak(truth_s, tb.values[:, j])
-                                         for j, w in enumerate(r.wl)}}
+                                         for j, w in enumerate(r.wl)},
+        # sun side (+, backscatter / hotspot) and the other (-, forward / specular), view zenith >= 5°
+        "mean_abs_error_by_side": {side: {f"{w:.0f}": float(np.nanmean(np.abs(model_at[sel, j] - tb.values[sel, j])))
+                                          for j, w in enumerate(r.wl)}
+                                   for side, sel in (("backscatter", truth_s >= 5.0), ("forward", truth_s <= -5.0))
+                                   if sel.any()}}
     r.add_truth_errors("principal_plane", err)
     plots.write_csv(r.out / "principal_plane_truth.csv",
                     ["signed_view_zenith_deg"] + r.cols("truth") + r.cols("model") + ["n_pixels"],
