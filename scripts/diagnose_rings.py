@@ -1,8 +1,8 @@
 """Where do a run's held-out views lose accuracy? CIR PSNR against truth per view ring and per
 surface class (simulated scenes: truth/materials/<view>.npy holds the material ids).
 
-Classes: far field (the simulator's flat surroundings beyond the 120 m core, material
-"soil_plain"), canopy (broadleaf, needles, bark, shrub), water, other ground. Also the share of
+Classes: far field (the simulator's flat surroundings beyond its 120 m core, from the truth
+depth), canopy (broadleaf, needles, bark, shrub), water, other ground. Also the share of
 pixels and of squared error each class has, and the mean rendered alpha per class.
 
     python scripts/diagnose_rings.py RUN [RUN ...] [--split test|validation] [--json OUT.json]
@@ -17,21 +17,30 @@ from pathlib import Path
 import numpy as np
 
 from brfgs.analysis.evaluate import _scene_for
+from brfgs.data.cameras import pixel_rays
 from brfgs.data.cir import cir_composite
 from brfgs.model import MODEL_FILE, TrainedModel, render
+from brfgs.sim.geometry import CORE_HALF_M
 from brfgs.sim.materials import MATERIAL_IDS
 
 CLASSES = {
-    "far_field": ("soil_plain",),
     "canopy": ("broadleaf", "needles", "bark", "shrub"),
     "water": ("water",),
 }
 
 
-def _classes(mat: np.ndarray) -> dict[str, np.ndarray]:
-    out, used = {}, np.zeros(mat.shape, bool)
+def _far_field(depth_m: np.ndarray, c2w: np.ndarray, intr) -> np.ndarray:  # [H, W] bool
+    """Pixels whose truth surface point lies outside the simulator's core (|x| or |y| > CORE_HALF_M)."""
+    o, d = pixel_rays(c2w, intr)  # [H, W, 3]
+    fwd = -np.asarray(c2w)[:3, 2]  # OpenGL camera: looks down -z
+    p = o + (depth_m / (d @ fwd))[..., None] * d
+    return (np.abs(p[..., 0]) > CORE_HALF_M) | (np.abs(p[..., 1]) > CORE_HALF_M)
+
+
+def _classes(mat: np.ndarray, far: np.ndarray) -> dict[str, np.ndarray]:
+    out, used = {"far_field": far}, far.copy()
     for name, mats in CLASSES.items():
-        m = np.isin(mat, [MATERIAL_IDS[x] for x in mats])
+        m = np.isin(mat, [MATERIAL_IDS[x] for x in mats]) & ~far
         out[name] = m
         used |= m
     out["other"] = ~used & (mat > 0)
@@ -51,10 +60,11 @@ def diagnose(run: Path, split: str = "test") -> dict:
         name = scene.frames[i].name
         truth = scene.load_truth(i)
         mat = np.load(scene.truth_dir / "materials" / f"{name}.npy")
+        far = _far_field(np.load(scene.truth_dir / "depth" / f"{name}.npy"), scene.frames[i].c2w, scene.intrinsics)
         r = render(tm, tm.cameras[i])
         se = ((r.cir - cir_composite(truth, tm.cir_indices, tm.cir_scale)) ** 2).mean(-1)  # [H, W]
         ring = acc.setdefault(rings[name], {})
-        for cls, m in {"all": np.ones(mat.shape, bool), **_classes(mat)}.items():
+        for cls, m in {"all": np.ones(mat.shape, bool), **_classes(mat, far)}.items():
             ring.setdefault(cls, []).append((se[m], r.alpha[m]))
     report = {}
     for ring, per in sorted(acc.items(), key=lambda kv: float(kv[0])):

@@ -165,3 +165,42 @@ def test_validation_split_needs_a_validation_run(trained, tmp_path, capsys):
     capsys.readouterr()
     assert main(["evaluate", str(out), "--split", "validation", "--quiet"]) == 2
     assert "--validation" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- far field
+def test_ground_height_is_the_surface_through_the_points():
+    from brfgs.train.far_field import ground_height
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-10, 10, (50, 2))
+    pts = np.c_[xy, 2.0 + 0.1 * xy[:, 0] - 0.05 * xy[:, 1]]  # a tilted plane
+    q = np.array([[0.0, 0.0], [3.0, -4.0], [100.0, 0.0]])
+    z = ground_height(pts, q)
+    np.testing.assert_allclose(z[:2], 2.0 + 0.1 * q[:2, 0] - 0.05 * q[:2, 1], atol=1e-9)
+    far = pts[np.argmin(np.linalg.norm(xy - q[2], axis=1)), 2]
+    assert z[2] == pytest.approx(far)  # outside the hull: the nearest point's height
+
+
+def test_visibility_fraction_counts_the_cameras_that_see_a_point():
+    from brfgs.model.camera import camera_from_intrinsics
+    from brfgs.data.cameras import Intrinsics, pose_from_view_angles
+    from brfgs.train.far_field import visibility_fraction
+    intr = Intrinsics.from_fov(30.0, 32, 32)
+    cams = [camera_from_intrinsics(pose_from_view_angles(z, a, 50.0), intr) for z, a in ((0, 0), (40, 0), (40, 180))]
+    means = torch.tensor([[0.0, 0.0, 0.0], [0.0, -20.0, 0.0], [0.0, 0.0, 80.0]])
+    frac = visibility_fraction(means, cams)
+    assert frac[0] == 1.0  # the centre: every view
+    assert 0 < frac[1] < 1  # off to one side: some views
+    assert frac[2] == 0.0  # behind/above every camera
+
+
+def test_far_field_gaussians_stay_on_the_ground(trained, tmp_path):
+    scene, _ = trained
+    out = tmp_path / "ff"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "4",
+                 "--far-field-plane", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
+    tm = TrainedModel.load(out / "model.safetensors")
+    p = tm.gaussians.params
+    far = p["far"] > 0.5
+    assert far.any() and (~far).any()
+    np.testing.assert_array_equal(p["means"][far, 2].detach().numpy(), p["far_ground_z"][far].detach().numpy())
+    assert np.isfinite(render(tm, tm.cameras[0], backend="torch").cube).all()

@@ -15,6 +15,7 @@ z_iso .. z_spec    [N, d]       latent kernel coefficients (eq. 11-12), appearan
 rho_raw            [N]          roughness (brfgs.brdf.head.roughness_from_raw)
 sh                 [N, 16, c]   SH coefficients (appearance "sh": c = d; "cir": c = 3)
 feat               [N, d]       per-Gaussian feature of the neural baseline
+far, far_ground_z  [N], [N]     optional far-field mark and ground height (m), never optimised
 =================  ===========  ============================================================
 
 Which appearance tensors exist depends on ``appearance`` ("brf", "sh", "neural", "cir").
@@ -33,6 +34,8 @@ from scipy.spatial import Delaunay, cKDTree
 from torch import Tensor
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
+# kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
+KEPT_KEYS = ("colors", "colors_rest", "far", "far_ground_z")
 APPEARANCES = ("brf", "sh", "neural", "cir")
 
 
@@ -94,7 +97,7 @@ class GaussianModel:
         """Replace the appearance tensors by ``head_params`` (brfgs.brdf.head.init_head_params
         names: z_iso.., rho_raw, sh, color; or "feat" for the neural baseline)."""
         for k in list(self.params):
-            if k not in GEOMETRY_KEYS and k not in ("colors", "colors_rest"):
+            if k not in GEOMETRY_KEYS and k not in KEPT_KEYS:
                 del self.params[k]
         for k, v in head_params.items():
             self.params[k] = v.detach().float().clone().requires_grad_(True)

@@ -100,6 +100,10 @@ class TrainConfig:
                                   "--finetune-decoder/--frozen-decoder")
     centred_kernels: bool = _opt(True, "Train the hybrid head in the centred form z'_iso + sum_j z_j (K_j - K_j(nadir)) "
                                  "(same function class as eq. 12; saved in eq. 12 form).", "--centred-kernels/--plain-kernels")
+    far_field_plane: bool = _opt(False, "Keep the Gaussians that fewer than 30% of the training views see (the far "
+                                 "field beyond the area of interest) on the ground surface: no floaters where few "
+                                 "views constrain depth (brfgs.train.far_field).",
+                                 "--far-field-plane/--free-far-field")
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")

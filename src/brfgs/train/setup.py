@@ -22,6 +22,7 @@ from brfgs.train.images import TrainImages
 from brfgs.train.phases import plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
+from brfgs.train.far_field import mark_far_field
 from brfgs.train.targets import backprojected_targets, ground_footprints
 
 
@@ -65,6 +66,9 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
         cols = np.full((cols.shape[0], len(s1)), np.nan)
     gm = init_from_points(pts, np.nan_to_num(cols), cfg.latent_dim, cfg.init_opacity)
     state.gaussians = gm
+    if cfg.far_field_plane:
+        n_far = mark_far_field(gm, [state.cameras[i] for i in scene.train_indices], np.asarray(init.points, np.float64))
+        log(f"init: {n_far} of {gm.n} Gaussians in the far field, kept on the ground surface")
     if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
         with torch.no_grad():
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,

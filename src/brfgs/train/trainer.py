@@ -27,6 +27,7 @@ from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
 from brfgs.train.config import TrainConfig
+from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, plan
 from brfgs.train.run_folder import RunFolder
@@ -223,6 +224,8 @@ class Trainer:
             strategy.after_backward(st.densify, res.out, win[2] if win else self.scene.width,
                                     win[3] if win else self.scene.height)
         st.opt.step(params)
+        if phase.trains_geometry:
+            project_far_field(st.gaussians)
         st.step += 1
         if strategy is not None:
             strategy.after_step(st.gaussians, st.opt, st.densify, st.step, steps, st.gen)
