@@ -72,6 +72,9 @@ class TrainConfig:
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
     lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "
                                     "sharper depth maps, lower PSNR; 0 = off).")
+    lambda_alpha: float = _opt(0.0, "Weight of the coverage prior mean(1 - alpha) while geometry trains: every pixel of "
+                               "a UAV image sees the ground, so the Gaussians should cover it (no learned background "
+                               "showing through semi-transparent ground; 0 = off).")
     lambda_depth_smooth: float = _opt(50.0, "Weight of the edge-aware second-order smoothness of the rendered inverse "
                                       "depth while geometry trains (0 = off).")
     learn_normals: bool = _opt(True, "Learn per-Gaussian shading normals in stage 2, or use the smallest axis (paper).",
@@ -136,7 +139,8 @@ class TrainConfig:
             raise UserError("step counts must be >= 0", field="stage1_steps")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
-        lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth")
+        lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
+                   "lambda_alpha")
         for name in lambdas:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)

@@ -68,6 +68,16 @@ def ssim_torch(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0, valid:
     return torch.where(ok, m, torch.zeros_like(m)).sum() / ok.sum()
 
 
+def coverage_loss(
+    alpha: torch.Tensor,  # [H, W] accumulated opacity
+    valid: torch.Tensor,  # [H, W] bool
+) -> torch.Tensor:  # scalar
+    """Mean of 1 - alpha over the valid pixels: 0 when the Gaussians cover every pixel."""
+    if not bool(valid.any()):
+        return alpha.sum() * 0.0
+    return (1.0 - alpha)[valid].mean()
+
+
 def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, alpha: float) -> torch.Tensor:
     """(1 - alpha) L1 + alpha D-SSIM (eq. 24); D-SSIM on the grayscale (band mean) images.
 

@@ -17,7 +17,7 @@ from brfgs.model.rendering import composite_background, decode_image, frustum_su
 from brfgs.render import RenderOutput, rasterize
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
-from brfgs.train.losses import (depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
+from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
                                 masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
 from brfgs.train.state import TrainState, head_config
@@ -107,6 +107,9 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     smoothness priors on the rendered geometry channels (None when all are off)."""
     c = cfg
     greg = c.lambda_flat * flatten_loss(state.gaussians["log_scales"]) if c.lambda_flat > 0 else None
+    if c.lambda_alpha > 0:  # coverage: 1 - alpha over the valid pixels
+        cover = c.lambda_alpha * coverage_loss(out.alpha, batch.valid)
+        greg = cover if greg is None else greg + cover
     if not use_priors:
         return greg
     geo = out.image[..., n_feat:]  # [H, W, 4 or 5] depth, normal (, depth²)
