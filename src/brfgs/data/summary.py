@@ -41,6 +41,7 @@ class SceneSummary:
     mean_reflectance: list[float] = field(default_factory=list)
     snr: list[float] = field(default_factory=list)
     invalid_pixels: dict[str, int] = field(default_factory=dict)
+    rings: dict[str, list[int]] = field(default_factory=dict)  # view ring -> [n train, n test]
 
     def to_json(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -79,7 +80,17 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
-        invalid_pixels=dict(scene.invalid_counts))
+        invalid_pixels=dict(scene.invalid_counts), rings=_ring_counts(scene))
+
+
+def _ring_counts(scene: Scene) -> dict[str, list[int]]:
+    """{view ring: [n train, n test]} of the split (rings: brfgs.data.splits)."""
+    rings = scene.rings()
+    out: dict[str, list[int]] = {}
+    for f in scene.frames:
+        c = out.setdefault(rings[f.name], [0, 0])
+        c[f.split == "test"] += 1
+    return dict(sorted(out.items(), key=lambda kv: float(kv[0])))
 
 
 def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
@@ -87,6 +98,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
     lines = [
         f"scene            {s.name}",
         f"frames           {s.n_frames} ({s.n_train} train / {s.n_test} test)",
+        "view rings       " + ", ".join(f"{r} deg: {a}/{b}" for r, (a, b) in s.rings.items()) + " (train/test)",
         f"bands            {s.n_bands}, {s.wavelength_range_nm[0]:.1f}-{s.wavelength_range_nm[1]:.1f} nm",
         f"image size       {s.width} x {s.height} px",
         f"sun              zenith {s.sun_zenith_deg:.1f} deg, azimuth {s.sun_azimuth_deg:.1f} deg",
