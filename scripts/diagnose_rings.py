@@ -3,9 +3,10 @@ surface class (simulated scenes: truth/materials/<view>.npy holds the material i
 
 Classes: far field (the simulator's flat surroundings beyond its 120 m core, from the truth
 depth), canopy (broadleaf, needles, bark, shrub), water, other ground. Also the share of
-pixels and of squared error each class has, and the mean rendered alpha per class.
+pixels and of squared error each class has, the mean rendered alpha and the median
+|rendered − true depth| (m, along the optical axis, pixels with alpha > 0.5) per class.
 
-    python scripts/diagnose_rings.py RUN [RUN ...] [--split test|validation] [--json OUT.json]
+    python scripts/diagnose_rings.py RUN [RUN ...] [--split test|validation|train] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -53,48 +54,54 @@ def _psnr(se: np.ndarray) -> float | None:
 
 def diagnose(run: Path, split: str = "test") -> dict:
     tm = TrainedModel.load(run / MODEL_FILE)
-    scene = _scene_for(tm, None, split)
+    scene = _scene_for(tm, None, "test" if split == "train" else split)  # train: how well the fit holds
     rings = scene.rings()
     acc: dict[str, dict[str, list]] = {}
     for i in scene.indices_of(split):
         name = scene.frames[i].name
         truth = scene.load_truth(i)
         mat = np.load(scene.truth_dir / "materials" / f"{name}.npy")
-        far = _far_field(np.load(scene.truth_dir / "depth" / f"{name}.npy"), scene.frames[i].c2w, scene.intrinsics)
+        depth = np.load(scene.truth_dir / "depth" / f"{name}.npy")
+        far = _far_field(depth, scene.frames[i].c2w, scene.intrinsics)
         r = render(tm, tm.cameras[i])
+        derr = np.where(r.alpha > 0.5, np.abs(r.depth - depth), np.nan)  # [H, W] m
         se = ((r.cir - cir_composite(truth, tm.cir_indices, tm.cir_scale)) ** 2).mean(-1)  # [H, W]
         ring = acc.setdefault(rings[name], {})
         for cls, m in {"all": np.ones(mat.shape, bool), **_classes(mat, far)}.items():
-            ring.setdefault(cls, []).append((se[m], r.alpha[m]))
+            ring.setdefault(cls, []).append((se[m], r.alpha[m], derr[m]))
     report = {}
     for ring, per in sorted(acc.items(), key=lambda kv: float(kv[0])):
-        total = np.concatenate([x for x, _ in per["all"]])
+        total = np.concatenate([x for x, _, _ in per["all"]])
         report[ring] = {}
         for cls, parts in per.items():
-            se = np.concatenate([x for x, _ in parts])
-            al = np.concatenate([a for _, a in parts])
+            se = np.concatenate([x for x, _, _ in parts])
+            al = np.concatenate([a for _, a, _ in parts])
+            de = np.concatenate([d for _, _, d in parts])
+            de = de[np.isfinite(de)]
             report[ring][cls] = {"psnr": _psnr(se), "pixel_share": se.size / total.size,
                                  "error_share": float(se.sum() / max(total.sum(), 1e-12)),
-                                 "mean_alpha": float(al.mean()) if al.size else None}
+                                 "mean_alpha": float(al.mean()) if al.size else None,
+                                 "median_depth_error_m": float(np.median(de)) if de.size else None}
     return report
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", type=Path)
-    ap.add_argument("--split", default="test")
+    ap.add_argument("--split", default="test", choices=("test", "validation", "train"))
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     out = {}
     for run in a.runs:
         rep = out[str(run)] = diagnose(run, a.split)
         print(f"\n{run} ({a.split})")
-        print(f"{'ring':>5} {'class':>10} {'PSNR':>7} {'pixels':>7} {'error':>7} {'alpha':>6}")
+        print(f"{'ring':>5} {'class':>10} {'PSNR':>7} {'pixels':>7} {'error':>7} {'alpha':>6} {'|dz| m':>7}")
         for ring, per in rep.items():
             for cls, m in per.items():
                 p = "-" if m["psnr"] is None else f"{m['psnr']:.2f}"
                 al = "-" if m["mean_alpha"] is None else f"{m['mean_alpha']:.3f}"
-                print(f"{ring:>5} {cls:>10} {p:>7} {m['pixel_share']:>7.1%} {m['error_share']:>7.1%} {al:>6}")
+                dz = "-" if m["median_depth_error_m"] is None else f"{m['median_depth_error_m']:.2f}"
+                print(f"{ring:>5} {cls:>10} {p:>7} {m['pixel_share']:>7.1%} {m['error_share']:>7.1%} {al:>6} {dz:>7}")
     if a.json:
         a.json.write_text(json.dumps(out, indent=1))
 

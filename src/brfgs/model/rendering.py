@@ -45,10 +45,11 @@ def rasterize_features(
     feats: Tensor,  # [N, C]
     cam: Camera,
     backend: str = "auto",
+    antialiased: bool = False,
 ) -> RenderOutput:
     """Rasterize ``feats`` for ``cam``: image [H, W, C] (premultiplied), alpha [H, W], depth, meta."""
     return rasterize(model.means, model.quats, model.scales, model.opacities, feats, cam.viewmat, cam.K,
-                     cam.width, cam.height, backend=backend)
+                     cam.width, cam.height, backend=backend, antialiased=antialiased)
 
 
 def composite_background(
@@ -128,7 +129,7 @@ def _rasterize_subset(model: "TrainedModel", cam: Camera, features: FeaturesFn, 
                             torch.zeros(cam.height, cam.width, 3) if want_normals else None, {"backend": "none"})
     return rasterize(means[idx].contiguous(), f["quats"][idx].contiguous(), f["scales"][idx].contiguous(),
                      f["opacities"][idx].contiguous(), feats, cam.viewmat, cam.K, cam.width, cam.height,
-                     backend=backend, normals=normals)
+                     backend=backend, normals=normals, antialiased=model.antialiased)
 
 
 def _unit_normals(normal: Tensor | None) -> np.ndarray | None:

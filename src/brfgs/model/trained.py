@@ -132,6 +132,11 @@ class TrainedModel:
         spectra), as trained (models older than the option: "pixel")."""
         return str(self.config.get("decode", "pixel")) if self.spectral else "pixel"
 
+    @property
+    def antialiased(self) -> bool:
+        """Whether it was trained (and so renders) with Mip-Splatting's 2D filter (option ``antialias``)."""
+        return bool(self.config.get("antialias", False))
+
     def sun_direction(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None) -> Tensor:
         """ω_i [3] (float32) for the given sun or the acquisition's."""
         z = self.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg

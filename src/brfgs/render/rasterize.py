@@ -11,7 +11,7 @@ from torch import Tensor
 
 from brfgs.errors import UserError
 from brfgs.render import cpu_backend, cuda_backend, torch_backend
-from brfgs.render._common import FAR_PLANE, NEAR_PLANE
+from brfgs.render._common import EPS2D, FAR_PLANE, NEAR_PLANE
 
 BACKENDS = ("auto", "torch", "cpu", "cuda")
 _threads_configured = False
@@ -141,6 +141,7 @@ def rasterize(
     backend: str = "auto",  # "auto" | "torch" | "cpu" | "cuda"
     normals: Tensor | None = None,  # [N, 3] composited like features, or None
     background: Tensor | None = None,  # [C] added as (1 − alpha)·background, or None
+    antialiased: bool = False,  # Mip-Splatting's 2D filter (:func:`antialias_opacities`)
 ) -> RenderOutput:
     """Render N Gaussians into one camera with 3DGS semantics (see ``brfgs.render``).
 
@@ -149,19 +150,50 @@ def rasterize(
     order between the near and far planes ``render._common.NEAR_PLANE`` / ``FAR_PLANE``
     (0.01 m, 1e10 m). All tensors share the dtype of ``means`` (float32 or float64); outputs are
     described in :class:`RenderOutput`. Gradients flow to means, quats, scales, opacities,
-    features and normals.
+    features and normals. ``antialiased`` scales each opacity so that the 0.3 px² low-pass
+    keeps a Gaussian's integrated opacity (:func:`antialias_opacities`), in every backend.
     """
     g = _Splats(means, quats, scales, opacities, features, normals)
     _check_inputs(g, viewmat, K, background)
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
         raise UserError(f"image size {width}x{height} must be positive", field="width/height")
+    if antialiased:
+        g = g._replace(opacities=antialias_opacities(means, quats, scales, opacities, viewmat, K, width, height))
     be = resolve_backend(backend, means.device)
     if be == "cuda":
         return _rasterize_cuda(g, viewmat, K, width, height, background)
     if means.device.type != "cpu":
         raise UserError(f"backend {be!r} needs CPU tensors, got device {means.device}", field="backend")
     return _rasterize_cpu(be, g, viewmat, K, width, height, background)
+
+
+def antialias_opacities(
+    means: Tensor,  # [N, 3] m, world
+    quats: Tensor,  # [N, 4] (w, x, y, z)
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    viewmat: Tensor,  # [4, 4] world -> camera
+    K: Tensor,  # [3, 3] px
+    width: int,  # px
+    height: int,  # px
+) -> Tensor:  # [N] opacities for this camera
+    """Mip-Splatting's 2D mip filter (Yu et al. 2024, eq. 9; gsplat's ``rasterize_mode="antialiased"``):
+    o' = o · sqrt(det Σ2D / det(Σ2D + 0.3 I)), Σ2D the projected covariance before the low-pass.
+
+    The low-pass widens a sub-pixel Gaussian to about a pixel; without the factor it then covers
+    that pixel with its full opacity, so a Gaussian fitted to near-nadir views (where it spans
+    pixels) brightens and thickens where a view sees it smaller (oblique or distant views).
+    With it, the integral of o·G over the image is the same with and without the low-pass: the
+    splat acts as a box-filtered (anti-aliased) footprint. Gaussians behind the camera keep o.
+    """
+    _, in_depth, cov2 = torch_backend.camera_cov2d(means, quats, scales, viewmat.detach().to(torch.float64),
+                                                   K.detach().to(torch.float64), width, height, NEAR_PLANE, FAR_PLANE)
+    a, b, c = cov2[:, 0, 0], cov2[:, 0, 1], cov2[:, 1, 1]  # [N] px²
+    det_raw = (a * c - b * b).clamp_min(1e-20)
+    det_blur = (a + EPS2D) * (c + EPS2D) - b * b
+    comp = torch.sqrt(det_raw / det_blur)  # [N] in (0, 1)
+    return opacities * torch.where(in_depth, comp, torch.ones_like(comp))
 
 
 def _rasterize_cuda(g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,

@@ -48,23 +48,23 @@ def _rotmat_unshared(quats: torch.Tensor) -> torch.Tensor:
     ], -1).reshape(q.shape[:-1] + (3, 3))
 
 
-def project(
+def camera_cov2d(
     means: Tensor,  # [N, 3] m, world
     quats: Tensor,  # [N, 4] (w, x, y, z), any norm
     scales: Tensor,  # [N, 3] m
-    opacities: Tensor,  # [N]
     viewmat: Tensor,  # [4, 4] float64 world -> camera (OpenCV axes)
     K: Tensor,  # [3, 3] float64 px
     width: int,  # px
     height: int,  # px
-    near: float,  # m, near plane
-    far: float,  # m, far plane
-) -> Projection:  # per-Gaussian screen-space quantities, see Projection
-    """EWA projection of 3D Gaussians to the image (3DGS, Kerbl et al. 2023, eqs 5–6; gsplat conventions)."""
+    near: float,  # m
+    far: float,  # m
+) -> tuple[Tensor, Tensor, Tensor]:  # camera coords [N, 3] m, in_depth [N] bool, cov2d [N, 2, 2] px²
+    """Camera coordinates and the EWA image covariance J W Σ Wᵀ Jᵀ without the low-pass
+    (3DGS, Kerbl et al. 2023, eq. 5; the Jacobian's x/z, y/z clamped to 1.3× the field of view)."""
     dtype = means.dtype
     Rw = viewmat[:3, :3].to(dtype)  # [3, 3]
     tw = viewmat[:3, 3].to(dtype)   # [3]
-    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    fx, fy = float(K[0, 0]), float(K[1, 1])
     pc = means @ Rw.T + tw          # [N, 3] camera coordinates (OpenCV)
     z = pc[:, 2]
     in_depth = (z > near) & (z < far)
@@ -80,7 +80,27 @@ def project(
     M = R * scales[:, None, :]                  # [N, 3, 3] = R S
     cov3 = M @ M.transpose(1, 2)                # [N, 3, 3] world
     covc = Rw @ cov3 @ Rw.T                     # [N, 3, 3] camera
-    cov2 = J @ covc @ J.transpose(1, 2)         # [N, 2, 2]
+    return pc, in_depth, J @ covc @ J.transpose(1, 2)  # [N, 2, 2]
+
+
+def project(
+    means: Tensor,  # [N, 3] m, world
+    quats: Tensor,  # [N, 4] (w, x, y, z), any norm
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    viewmat: Tensor,  # [4, 4] float64 world -> camera (OpenCV axes)
+    K: Tensor,  # [3, 3] float64 px
+    width: int,  # px
+    height: int,  # px
+    near: float,  # m, near plane
+    far: float,  # m, far plane
+) -> Projection:  # per-Gaussian screen-space quantities, see Projection
+    """EWA projection of 3D Gaussians to the image (3DGS, Kerbl et al. 2023, eqs 5–6; gsplat conventions)."""
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    pc, in_depth, cov2 = camera_cov2d(means, quats, scales, viewmat, K, width, height, near, far)
+    z = pc[:, 2]
+    zs = torch.where(in_depth, z, torch.ones_like(z))  # safe divisor
+    x, y = pc[:, 0], pc[:, 1]
     a2 = cov2[:, 0, 0] + EPS2D
     b2 = cov2[:, 0, 1]
     c2 = cov2[:, 1, 1] + EPS2D
@@ -109,7 +129,7 @@ def project(
         py1 = py1.clamp(0, height - 1).nan_to_num(0).long()
         rect = torch.stack([px0 // TILE, py0 // TILE, px1 // TILE, py1 // TILE], -1)
         radii_xy = torch.where(ok[:, None], torch.stack([rx, ry], -1), torch.zeros_like(torch.stack([rx, ry], -1)))
-    return Projection(means2d, conics, z, radii_xy.to(dtype), rect, ok)
+    return Projection(means2d, conics, z, radii_xy.to(means.dtype), rect, ok)
 
 
 def bin_tiles(

@@ -81,7 +81,8 @@ class TrainConfig:
                                "--learn-normals/--geometric-normals")
     lambda_normal_smooth: float = _opt(0.1, "Weight of the stage-2 smoothness loss of the learned normals over 8 "
                                        "neighbours (0 = off).")
-    stage1_sh_degree: int = _opt(3, "View dependence of the stage-1 colours: SH degree 0 (none) to 3 (as 3DGS).")
+    stage1_sh_degree: int = _opt(0, "View dependence of the stage-1 colours: SH degree 0 (none, as the paper) to 3 "
+                                 "(as 3DGS; measured worse on validation views, docs/method.md).")
     lr_normals: float = _opt(2e-3, "Adam learning rate of the learned shading normals.")
     lr_means: float = _opt(1.6e-4, "Initial learning rate of the means (x scene extent in m).")
     lr_means_final: float = _opt(1.6e-6, "Final learning rate of the means (x scene extent in m).")
@@ -107,6 +108,10 @@ class TrainConfig:
                                  "field beyond the area of interest) on the ground surface: no floaters where few "
                                  "views constrain depth (brfgs.train.far_field).",
                                  "--far-field-plane/--free-far-field")
+    antialias: bool = _opt(False, "Mip-Splatting's 2D filter: scale each opacity by sqrt(det cov2d / det(cov2d + 0.3 I)) "
+                           "so that a Gaussian seen smaller than a pixel (oblique views) is not brightened by the "
+                           "low-pass (training and rendering; brfgs.render.rasterize.antialias_opacities).",
+                           "--antialias/--no-antialias")
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
@@ -235,8 +240,6 @@ ADDITIONS: dict[str, Addition] = {
                          "the Cook-Torrance kernel"),
     "depth_smoothness": Addition(dict(lambda_depth_smooth=0.0), 1, "edge-aware smoothness of the rendered inverse "
                                  "depth keeps water and flat ground as surfaces instead of floaters"),
-    "sh3_stage1": Addition(dict(stage1_sh_degree=0), 1, "3DGS's SH-3 colours in stage 1 let view-dependent radiance "
-                           "be explained by appearance, not by moving geometry"),
     "fill_points": Addition(dict(init_fill_points=0), 1, "a 2.5-D surface through the sparse SfM points seeds Gaussians "
                             "where SfM finds few features (water, shadows)"),
     "learned_normals": Addition(dict(learn_normals=False, lambda_normal_smooth=0.0), 2, "the smallest axis of a "

@@ -72,7 +72,7 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
     if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
         with torch.no_grad():
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
-                                                            backend=cfg.backend))
+                                                            backend=cfg.backend, antialiased=cfg.antialias))
     if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         k = gm["colors"].shape[1]
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
@@ -106,12 +106,13 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
     """Appearance tensors of the variant, the view-independent part from back-projected observations."""
     gm, n, cams = state.gaussians, state.gaussians.n, state.cameras
     if cfg.variant == "cir":
-        base = backprojected_targets(gm, images("cir"), cams, scene.train_indices, backend=cfg.backend)
+        base = backprojected_targets(gm, images("cir"), cams, scene.train_indices, backend=cfg.backend,
+                                     antialiased=cfg.antialias)
         params = init_head_params(head_config(cfg), n, 3, z_init=base)
         state.extra["bg_colors"] = base.mean(0)
     else:
         base = backprojected_targets(gm, images("full"), cams, scene.train_indices, encode=state.decoder.encode,
-                                     backend=cfg.backend)
+                                     backend=cfg.backend, antialiased=cfg.antialias)
         state.extra["bg_latent"] = base.mean(0).detach()
         if cfg.variant == "neural":
             params = {"feat": base}

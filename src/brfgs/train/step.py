@@ -158,10 +158,11 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
 def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None) -> RenderOutput:
     """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]."""
     g = state.gaussians
+    aa = state.cfg.antialias
     if subset is None:
-        return rasterize_features(g, feats, cam, backend)
+        return rasterize_features(g, feats, cam, backend, antialiased=aa)
     return rasterize(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam.viewmat,
-                     cam.K, cam.width, cam.height, backend=backend)
+                     cam.K, cam.width, cam.height, backend=backend, antialiased=aa)
 
 
 def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera) -> tuple[Tensor, Tensor | None]:

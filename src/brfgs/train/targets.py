@@ -41,7 +41,7 @@ def projected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera
 
 
 def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera], indices: list[int],
-                          encode=None, backend: str = "auto") -> Tensor:
+                          encode=None, backend: str = "auto", antialiased: bool = False) -> Tensor:
     """Per-Gaussian mean target [N, C] weighted by the rendering weights (occlusion-aware).
 
     For each view, d/df of sum_p <image_p(f), t_p> is sum_p w_kp t_p, so one rasterization +
@@ -61,7 +61,8 @@ def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Ca
         f = torch.zeros(m.n, t.shape[-1], requires_grad=True)
         cam = cams[i]
         with torch.enable_grad():
-            out = rasterize(means, quats, scales, opac, f, cam.viewmat, cam.K, cam.width, cam.height, backend=backend)
+            out = rasterize(means, quats, scales, opac, f, cam.viewmat, cam.K, cam.width, cam.height, backend=backend,
+                            antialiased=antialiased)
             (out.image * t).sum().backward()
         acc = f.grad.clone() if acc is None else acc + f.grad
     w = acc[:, -1:]
