@@ -206,6 +206,22 @@ def test_far_field_gaussians_stay_on_the_ground(trained, tmp_path):
     assert np.isfinite(render(tm, tm.cameras[0], backend="torch").cube).all()
 
 
+def test_antialiased_model_trains_and_renders_with_the_filter(trained, tmp_path):
+    """--antialias is a model property: it trains with the filter and renders with it (less alpha
+    than the same model rendered without the opacity compensation)."""
+    scene, _ = trained
+    out = tmp_path / "aa"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "4",
+                 "--antialias", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
+    tm = TrainedModel.load(out / "model.safetensors")
+    assert tm.antialiased and json.loads((out / "config.json").read_text())["antialias"] is True
+    with_filter = render(tm, tm.cameras[0], backend="torch")
+    tm.config["antialias"] = False
+    without = render(tm, tm.cameras[0], backend="torch")
+    assert np.isfinite(with_filter.cube).all()
+    assert with_filter.alpha.sum() < without.alpha.sum()
+
+
 def test_table2_runs_fit_the_selected_bands_only_in_stage_1():
     runs = _runs("bands", preset("fast"))
     assert len(runs) == 8 and len({cfg.band_strategy for _, _, cfg, _ in runs}) == 8

@@ -1,4 +1,5 @@
-"""Mip-Splatting's 2D filter (``rasterize(..., antialiased=True)``): the compensation factor against
+"""Mip-Splatting's 2D filter (``antialias_opacities`` before ``rasterize``; what the option
+``antialias`` does in training and rendering): the compensation factor against
 a float64 numpy reference, its gradients, the backends against each other, and the limit cases
 that define it (a Gaussian's integrated opacity survives the 0.3 px² low-pass)."""
 
@@ -61,8 +62,9 @@ def test_cpu_matches_torch_when_antialiased():
     outs = {}
     for be in ("torch", "cpu"):
         p = {k: sc[k].clone().requires_grad_(True) for k in ("means", "quats", "scales", "opacities", "features")}
-        o = rasterize(p["means"], p["quats"], p["scales"], p["opacities"], p["features"], sc["viewmat"], sc["K"],
-                      40, 30, backend=be, antialiased=True)
+        op = antialias_opacities(p["means"], p["quats"], p["scales"], p["opacities"], sc["viewmat"], sc["K"], 40, 30)
+        o = rasterize(p["means"], p["quats"], p["scales"], op, p["features"], sc["viewmat"], sc["K"], 40, 30,
+                      backend=be)
         w = torch.linspace(-1, 1, o.image.numel()).reshape(o.image.shape).to(o.image.dtype)
         ((o.image * w).sum() + o.alpha.sum()).backward()
         outs[be] = (o, {k: v.grad for k, v in p.items()})
@@ -82,10 +84,13 @@ def _one_gaussian_alpha_sum(sigma_px: float, antialiased: bool, opacity=0.5) -> 
     s_m = sigma_px * d / f
     K = torch.tensor([[f, 0, W / 2], [0, f, W / 2], [0, 0, 1]], dtype=torch.float64)
     view = torch.eye(4, dtype=torch.float64)
-    out = rasterize(torch.tensor([[0.013, -0.021, d]], dtype=torch.float64), torch.tensor([[1.0, 0, 0, 0]],
-                    dtype=torch.float64), torch.full((1, 3), s_m, dtype=torch.float64),
-                    torch.tensor([opacity], dtype=torch.float64), torch.ones(1, 1, dtype=torch.float64), view, K,
-                    W, W, backend="cpu", antialiased=antialiased)
+    means = torch.tensor([[0.013, -0.021, d]], dtype=torch.float64)
+    quats = torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64)
+    scales = torch.full((1, 3), s_m, dtype=torch.float64)
+    op = torch.tensor([opacity], dtype=torch.float64)
+    if antialiased:
+        op = antialias_opacities(means, quats, scales, op, view, K, W, W)
+    out = rasterize(means, quats, scales, op, torch.ones(1, 1, dtype=torch.float64), view, K, W, W, backend="cpu")
     v = sigma_px ** 2 + 0.3
     peak = opacity * sigma_px ** 2 / v if antialiased else opacity
     return out.alpha.sum().item(), 2 * math.pi * v * (peak - 1 / 255)

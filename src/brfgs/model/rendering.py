@@ -31,6 +31,7 @@ from brfgs.data.cir import cir_composite
 from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
 from brfgs.render import RenderOutput, rasterize
+from brfgs.render.rasterize import antialias_opacities
 from brfgs.render.geometry import project_pinhole
 
 if TYPE_CHECKING:  # type only: trained.py imports this module
@@ -38,6 +39,25 @@ if TYPE_CHECKING:  # type only: trained.py imports this module
 
 # features(idx [n] long, omega_o [n, 3]) -> [n, C]: per-Gaussian features of the Gaussians kept
 FeaturesFn = Callable[[Tensor, Tensor], Tensor]
+
+
+def rasterize_splats(
+    means: Tensor,  # [N, 3] m
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    feats: Tensor,  # [N, C]
+    cam: Camera,
+    backend: str = "auto",
+    antialiased: bool = False,
+    normals: Tensor | None = None,  # [N, 3]
+) -> RenderOutput:
+    """:func:`brfgs.render.rasterize` for ``cam``; with ``antialiased`` the opacities first get
+    Mip-Splatting's compensation for the view (:func:`brfgs.render.rasterize.antialias_opacities`)."""
+    if antialiased:
+        opacities = antialias_opacities(means, quats, scales, opacities, cam.viewmat, cam.K, cam.width, cam.height)
+    return rasterize(means, quats, scales, opacities, feats, cam.viewmat, cam.K, cam.width, cam.height,
+                     backend=backend, normals=normals)
 
 
 def rasterize_features(
@@ -48,8 +68,7 @@ def rasterize_features(
     antialiased: bool = False,
 ) -> RenderOutput:
     """Rasterize ``feats`` for ``cam``: image [H, W, C] (premultiplied), alpha [H, W], depth, meta."""
-    return rasterize(model.means, model.quats, model.scales, model.opacities, feats, cam.viewmat, cam.K,
-                     cam.width, cam.height, backend=backend, antialiased=antialiased)
+    return rasterize_splats(model.means, model.quats, model.scales, model.opacities, feats, cam, backend, antialiased)
 
 
 def composite_background(
@@ -127,9 +146,8 @@ def _rasterize_subset(model: "TrainedModel", cam: Camera, features: FeaturesFn, 
         z = torch.zeros(cam.height, cam.width)
         return RenderOutput(torch.zeros(cam.height, cam.width, feats.shape[1]), z, z.clone(),
                             torch.zeros(cam.height, cam.width, 3) if want_normals else None, {"backend": "none"})
-    return rasterize(means[idx].contiguous(), f["quats"][idx].contiguous(), f["scales"][idx].contiguous(),
-                     f["opacities"][idx].contiguous(), feats, cam.viewmat, cam.K, cam.width, cam.height,
-                     backend=backend, normals=normals, antialiased=model.antialiased)
+    return rasterize_splats(means[idx].contiguous(), f["quats"][idx].contiguous(), f["scales"][idx].contiguous(),
+                            f["opacities"][idx].contiguous(), feats, cam, backend, model.antialiased, normals)
 
 
 def _unit_normals(normal: Tensor | None) -> np.ndarray | None:

@@ -141,7 +141,6 @@ def rasterize(
     backend: str = "auto",  # "auto" | "torch" | "cpu" | "cuda"
     normals: Tensor | None = None,  # [N, 3] composited like features, or None
     background: Tensor | None = None,  # [C] added as (1 − alpha)·background, or None
-    antialiased: bool = False,  # Mip-Splatting's 2D filter (:func:`antialias_opacities`)
 ) -> RenderOutput:
     """Render N Gaussians into one camera with 3DGS semantics (see ``brfgs.render``).
 
@@ -150,16 +149,14 @@ def rasterize(
     order between the near and far planes ``render._common.NEAR_PLANE`` / ``FAR_PLANE``
     (0.01 m, 1e10 m). All tensors share the dtype of ``means`` (float32 or float64); outputs are
     described in :class:`RenderOutput`. Gradients flow to means, quats, scales, opacities,
-    features and normals. ``antialiased`` scales each opacity so that the 0.3 px² low-pass
-    keeps a Gaussian's integrated opacity (:func:`antialias_opacities`), in every backend.
+    features and normals. For anti-aliased splatting pass the opacities through
+    :func:`antialias_opacities` first (same for every backend).
     """
     g = _Splats(means, quats, scales, opacities, features, normals)
     _check_inputs(g, viewmat, K, background)
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
         raise UserError(f"image size {width}x{height} must be positive", field="width/height")
-    if antialiased:
-        g = g._replace(opacities=antialias_opacities(means, quats, scales, opacities, viewmat, K, width, height))
     be = resolve_backend(backend, means.device)
     if be == "cuda":
         return _rasterize_cuda(g, viewmat, K, width, height, background)

@@ -13,8 +13,10 @@ from torch import Tensor
 
 from brfgs.model.camera import Camera
 from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
-from brfgs.model.rendering import composite_background, decode_image, frustum_subset, rasterize_features
-from brfgs.render import RenderOutput, rasterize
+from brfgs.model.rendering import (
+    composite_background, decode_image, frustum_subset, rasterize_features, rasterize_splats,
+)
+from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
 from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
@@ -161,8 +163,8 @@ def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subs
     aa = state.cfg.antialias
     if subset is None:
         return rasterize_features(g, feats, cam, backend, antialiased=aa)
-    return rasterize(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam.viewmat,
-                     cam.K, cam.width, cam.height, backend=backend, antialiased=aa)
+    return rasterize_splats(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam,
+                            backend, aa)
 
 
 def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera) -> tuple[Tensor, Tensor | None]:

@@ -9,7 +9,7 @@ from torch import Tensor
 from brfgs.data.cameras import pixel_rays, project_points
 from brfgs.model import GaussianModel
 from brfgs.model.camera import Camera
-from brfgs.render import rasterize
+from brfgs.model.rendering import rasterize_splats
 from brfgs.render.geometry import project_pinhole
 from brfgs.train.images import ImageStore
 
@@ -61,8 +61,7 @@ def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Ca
         f = torch.zeros(m.n, t.shape[-1], requires_grad=True)
         cam = cams[i]
         with torch.enable_grad():
-            out = rasterize(means, quats, scales, opac, f, cam.viewmat, cam.K, cam.width, cam.height, backend=backend,
-                            antialiased=antialiased)
+            out = rasterize_splats(means, quats, scales, opac, f, cam, backend, antialiased)
             (out.image * t).sum().backward()
         acc = f.grad.clone() if acc is None else acc + f.grad
     w = acc[:, -1:]
