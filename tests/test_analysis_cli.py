@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from brfgs.cli import main
-from brfgs.data.cube_io import read_envi_header
+from brfgs.data.cube_io import envi_image_path, read_envi_header
 from test_analysis_brf import _write_scene_from_model
 from test_analysis_helpers import carpet_model, write_model_file
 
@@ -118,6 +118,16 @@ def test_products_and_export(run_dir, tmp_path):
     assert not (out / "vol.hdr").exists()                  # the model has no volumetric term
     info = json.loads((out / "products.json").read_text())
     assert info["settings"]["components"] == ["iso", "geo", "spec"]
+    # MODIS-style weights of the carpet (z_geo = 0.2 z_iso, no volumetric term): f_geo / f_iso = 0.2, f_vol = 0
+    import spectral.io.envi as envi
+
+    f = {k: np.asarray(envi.open(str(out / f"{k}.hdr"), str(envi_image_path(out / f"{k}.hdr"))).load())
+         for k in ("f_iso", "f_vol", "f_geo", "fit_rmse")}
+    ok = np.isfinite(f["f_iso"]) & (f["f_iso"] > 0.05)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(np.median(f["f_geo"][ok] / f["f_iso"][ok]), 0.2, rtol=0.01)
+    assert np.nanmax(np.abs(f["f_vol"])) < 0.01 * np.nanmax(f["f_iso"])
+    assert len(info["mcd43_fit_rmse_per_band"]["p95"]) == 8
     ex = tmp_path / "e"
     assert main(["export", str(run_dir), str(ex)]) == 0
     from plyfile import PlyData

@@ -14,6 +14,7 @@ from brfgs.analysis import brf as B
 from brfgs.analysis import products as P
 from brfgs.analysis.brf_report import BRFOptions, brf_report
 from brfgs.analysis.export import ExportOptions, export_model, read_ply
+from brfgs.analysis.mcd43_maps import render_mcd43
 from brfgs.analysis.products_report import ProductsOptions, products_report
 from brfgs.analysis.render_report import RenderOptions, render_report
 from brfgs.analysis.roi_spec import parse_roi_spec, resolve_roi
@@ -90,7 +91,11 @@ def test_products_report_writes_the_rendered_products(run_dir, tmp_path):
     assert info == json.loads(json.dumps(rep.info))
     tm = TrainedModel.load(run_dir)
     res = P.render_products(tm, _camera(info["camera"]), backend="cpu")
-    assert sorted(info["files"]) == sorted(["iso", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix"])
+    mcd43 = ["f_iso", "f_vol", "f_geo", "fit_rmse", "nbar_mcd43", "bsa_mcd43", "wsa_mcd43"]
+    assert sorted(info["files"]) == sorted(["iso", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix"] + mcd43)
+    fit = render_mcd43(tm, _camera(info["camera"]), nbar_sun_zenith_deg=tm.sun_zenith_deg,
+                       albedo_sun_zenith_deg=tm.sun_zenith_deg, backend="cpu")
+    res.update({k: fit[k] for k in mcd43})
     np.testing.assert_array_equal(np.load(rep.out / "alpha.npy"), res["alpha"])
     i_map = int(np.argmin(np.abs(tm.wavelengths_nm - 860.0)))
     for name, f in info["files"].items():
@@ -98,7 +103,9 @@ def test_products_report_writes_the_rendered_products(run_dir, tmp_path):
         np.testing.assert_array_equal(cube, res[name])
         assert f["mean_at_nm"] == pytest.approx(float(np.nanmean(res[name][..., i_map])), rel=1e-6)
         assert (rep.out / f["png"]).stat().st_size > 0
+    assert info["settings"].pop("mcd43")["grid"] == fit["settings"]["grid"]
     assert info["settings"] == json.loads(json.dumps(res["settings"]))
+    assert len(info["mcd43_fit_rmse_per_band"]["median"]) == len(tm.wavelengths_nm)
 
 
 def test_brf_report_tables_hold_the_sampled_brf(run_dir, tmp_path):

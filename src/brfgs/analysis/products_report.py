@@ -4,7 +4,10 @@
 with a nadir camera over the scene (:func:`brfgs.analysis.products.nadir_camera`) and writes one
 ENVI cube and one PNG per product (CIR composites for reflectances, a colour-mapped band near
 860 nm for the contributions and ANIX), alpha.npy and products.json (settings, camera, per-product
-mean at that band, optionally the decoder check).
+mean at that band, optionally the decoder check). With ``mcd43`` (the default) also the MODIS
+MCD43-style parameters f_iso, f_vol, f_geo per pixel and band fitted to the model's BRF, the fit's
+RMSE, and NBAR / black-sky / white-sky albedo computed from them as MCD43 does
+(:mod:`brfgs.analysis.mcd43_maps`).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 from brfgs.analysis import plots
 from brfgs.analysis import products as P
 from brfgs.analysis.brf import auto_roi_size
+from brfgs.analysis.mcd43_maps import MCD43_NAMES, render_mcd43
 from brfgs.analysis.options import check_size
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
 from brfgs.analysis.views import check_zenith_deg, intrinsics_json
@@ -29,8 +33,9 @@ from brfgs.data import atomic
 
 __all__ = ["ProductsOptions", "products_report", "PRODUCT_NAMES", "write_product_files"]
 
-PRODUCT_NAMES = ("iso", "vol", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix")
-_REFLECTANCES = ("iso", "total", "nbar", "bsa", "wsa")   # shown as CIR composites
+PRODUCT_NAMES = ("iso", "vol", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix") + MCD43_NAMES
+_REFLECTANCES = ("iso", "total", "nbar", "bsa", "wsa", "f_iso", "nbar_mcd43", "bsa_mcd43", "wsa_mcd43")  # CIR
+_NOT_SIGNED = ("anix", "fit_rmse")
 _MAP_BAND_NM = 860.0
 
 
@@ -45,6 +50,7 @@ class ProductsOptions:
     albedo_sun_zenith_deg: float | None = None   # black-sky albedo
     min_alpha: float = 0.5
     check_decoder: bool = True
+    mcd43: bool = True                           # fit MODIS-style f_iso, f_vol, f_geo (brfgs.brdf.mcd43)
     backend: str = "auto"
     overwrite: bool = False
     progress: bool = True
@@ -55,7 +61,12 @@ def _descriptions(nbar_sun_zenith_deg: float, albedo_sun_zenith_deg: float) -> d
             "spec": "Cook-Torrance (specular) term", "total": "total BRF (sum of the four terms)",
             "nbar": f"NBAR (nadir view, sun zenith {nbar_sun_zenith_deg:g} deg)",
             "bsa": f"black-sky albedo (sun zenith {albedo_sun_zenith_deg:g} deg)",
-            "wsa": "white-sky albedo", "anix": "anisotropy index max/min BRF over the principal plane"}
+            "wsa": "white-sky albedo", "anix": "anisotropy index max/min BRF over the principal plane",
+            "f_iso": "MCD43 isotropic weight f_iso", "f_vol": "MCD43 RossThick weight f_vol",
+            "f_geo": "MCD43 LiSparse-R weight f_geo", "fit_rmse": "RMSE of the MCD43 kernel fit to the model BRF",
+            "nbar_mcd43": f"MCD43 NBAR from f (sun zenith {nbar_sun_zenith_deg:g} deg)",
+            "bsa_mcd43": f"MCD43 black-sky albedo from f (sun zenith {albedo_sun_zenith_deg:g} deg)",
+            "wsa_mcd43": "MCD43 white-sky albedo from f"}
 
 
 def write_product_files(out: Path, tm: TrainedModel, products: dict, descriptions: dict[str, str]) -> dict:
@@ -74,7 +85,7 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
             png = plots.save_rgb_png(out / f"{name}.png", cir_composite(cube, tm.cir_indices, tm.cir_scale))
         else:
             png = plots.save_map_png(out / f"{name}.png", cube[..., i_map], f"{descriptions[name]}, {wl[i_map]:.0f} nm",
-                                     diverging=(name != "anix"), label="reflectance" if name != "anix" else "max/min")
+                                     diverging=(name not in _NOT_SIGNED), label="max/min" if name == "anix" else "reflectance")
         band = cube[..., i_map]
         ok = np.isfinite(band)
         files[name] = {"cube": hdr.name, "png": png.name, "description": descriptions[name],
@@ -82,6 +93,16 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
                        "finite_fraction": float(ok.mean())}
     atomic.save_npy(out / "alpha.npy", products["alpha"].astype(np.float32))
     return files
+
+
+def _rmse_per_band(rmse: np.ndarray, wl: np.ndarray) -> dict:
+    """Median and 95th percentile (over the map) of the MCD43 fit's RMSE per band."""
+    flat = rmse.reshape(-1, rmse.shape[-1])
+    ok = np.isfinite(flat).all(1)
+    if not ok.any():
+        return {"wavelengths_nm": wl.tolist(), "median": None, "p95": None}
+    return {"wavelengths_nm": [float(w) for w in wl], "median": np.median(flat[ok], 0).round(6).tolist(),
+            "p95": np.percentile(flat[ok], 95, 0).round(6).tolist()}
 
 
 def _suns(tm: TrainedModel, opts: ProductsOptions) -> tuple[float, float, float]:
@@ -123,6 +144,13 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
                             albedo_sun_zenith_deg=az, backend=opts.backend, progress=opts.progress,
                             min_alpha=opts.min_alpha)
     t_render = time.perf_counter() - t0
+    if opts.mcd43:
+        t1 = time.perf_counter()
+        fit = render_mcd43(tm, camera_from_intrinsics(c2w, intr), nbar_sun_zenith_deg=nz, albedo_sun_zenith_deg=az,
+                           backend=opts.backend, min_alpha=opts.min_alpha, progress=opts.progress)
+        res.update({k: fit[k] for k in MCD43_NAMES})
+        res["settings"]["mcd43"] = fit["settings"]
+        res["settings"]["mcd43"]["fit_seconds"] = time.perf_counter() - t1
     files = write_product_files(out, tm, res, _descriptions(nz, az))
     wl = tm.wavelengths_nm
     info = {"model": tm.source, "scene": tm.scene_name, "settings": res["settings"],
@@ -132,6 +160,10 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
             "notes": ["contributions are decoded sequentially (iso, +vol, +geo, +spec); they add up to 'total'",
                       "albedo integrals are applied in the latent space (brfgs.brdf.integrals); Cook-Torrance "
                       "integrals assume a horizontal facet", f"NaN where the accumulated opacity < {opts.min_alpha:g}"]}
+    if opts.mcd43:
+        info["mcd43_fit_rmse_per_band"] = _rmse_per_band(res["fit_rmse"], wl)
+        info["notes"].append("f_iso/f_vol/f_geo: RossThick-LiSparse-R weights fitted per pixel and band to the model's "
+                             "BRF over settings.mcd43.grid; *_mcd43 products are computed from them as MCD43 does")
     if opts.check_decoder:
         info["decoder_check"] = P.decoder_nonlinearity(tm, az)
     atomic.write_json(out / "products.json", info)

@@ -28,17 +28,21 @@ def products_cmd(
                                     help="Pixels whose accumulated opacity is below this are NaN in the products."),
     check_decoder: bool = typer.Option(True, "--check-decoder/--no-check-decoder",
                                        help="Measure how far latent-space albedo is from integrating decoded spectra."),
+    mcd43: bool = typer.Option(True, "--mcd43/--no-mcd43", help="Fit MODIS MCD43-style f_iso, f_vol, f_geo per "
+                               "pixel and band to the model's BRF (RossThick-LiSparse-R, 75 directions) and write "
+                               "them with the fit's RMSE and MCD43 NBAR/albedo from them."),
     out: Path = typer.Option(None, "--out", "-o", help="Output folder (default: RUN/analysis/products)."),
     backend: str = BackendOpt,
     overwrite: bool = OverwriteOpt,
     quiet: bool = QuietOpt,
 ) -> None:
-    """Per-pixel products from nadir: kernel contribution maps, NBAR, black/white-sky albedo, ANIX."""
+    """Per-pixel products from nadir: kernel contribution maps, NBAR, black/white-sky albedo, ANIX, and
+    MODIS MCD43-style kernel weights (f_iso, f_vol, f_geo) with the NBAR and albedos computed from them."""
     from brfgs.analysis.products_report import ProductsOptions, products_report
 
     opts = ProductsOptions(size=None if size is None else tuple(parse_floats(size, "--size")),
                            half_extent_m=half_extent, sun_zenith_deg=sun_zenith, nbar_sun_zenith_deg=nbar_sun_zenith,
-                           albedo_sun_zenith_deg=albedo_sun_zenith, min_alpha=min_alpha, check_decoder=check_decoder,
+                           albedo_sun_zenith_deg=albedo_sun_zenith, min_alpha=min_alpha, check_decoder=check_decoder, mcd43=mcd43,
                            backend=backend, overwrite=overwrite, progress=not quiet)
     typer.echo(products_report(run, opts, out).message)
 
