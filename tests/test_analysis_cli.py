@@ -50,6 +50,16 @@ def test_render_writes_cube_cir_depth_normals(run_dir, tmp_path):
     hdr = read_envi_header(out / "cube.hdr")
     assert [float(w) for w in hdr["wavelength"]] == pytest.approx(np.linspace(480.0, 860.0, 8), abs=1e-3)
     assert (int(hdr["samples"]), int(hdr["lines"]), int(hdr["bands"])) == (24, 16, 8)
+    # viewers' header fields: CIR as default bands (1-based), band names, NaN as no-data — read by GDAL too
+    assert [int(b) for b in hdr["default bands"]] == [7 + 1, 4 + 1, 0 + 1]
+    assert hdr["band names"][0] == "480.0 nm" and hdr["data ignore value"] == "nan"
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")                        # "not georeferenced": a camera view has no map
+        with rasterio.open(out / "cube.img") as ds:
+            assert ds.count == 8 and np.isnan(ds.nodata) and ds.descriptions[0].startswith("480.0 nm")
     depth = np.load(out / "depth.npy")
     normal = np.load(out / "normal.npy")
     assert depth.shape == (16, 24) and normal.shape == (16, 24, 3)

@@ -113,3 +113,55 @@ def test_ply_sh_fit_reproduces_the_view_dependent_cir_colour(tmp_path):
     # --view-dependence none: nadir colour, zero rest
     v0 = read_ply(write_ply(tmp_path / "n.ply", bm, view_dependence="none"))
     assert all((v0[f"f_rest_{i}"] == 0).all() for i in range(45))
+
+
+def test_ply_frames_for_splat_viewers(tmp_path):
+    """--up y / -y: positions, rotations, normals and SH colours are the ENU export's, rotated (and
+    centred, scaled); SuperSplat's load rotation (180° about z) then puts the scene's up at +y."""
+    from brfgs.analysis.export import PlyFrame, ply_frame
+    from brfgs.data.angles import direction_from_angles_deg
+    from brfgs.render.geometry import quat_to_rotmat
+
+    bm = carpet_model(half_m=2.0, n_bands=4, z_left=[0.1, 0.2, 0.3, 0.4], z_right=[0.2, 0.1, 0.3, 0.2],
+                      vol=0.3, geo=0.1, components=("iso", "vol", "geo"), height_fn=lambda x, y: 0.3 * x)
+    ref = read_ply(write_ply(tmp_path / "z.ply", bm))
+    p_ref = np.stack([ref["x"], ref["y"], ref["z"]], 1).astype(float)
+    up_enu = np.array([0.0, 0.0, 1.0])
+    for up, viewer_up in (("y", [0, 1, 0]), ("-y", [0, -1, 0])):
+        fr = ply_frame(bm, up, scale=2.0)
+        assert fr.centre_m == tuple(bm.scene_centre_m())
+        r = fr.rotation
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)   # a proper rotation
+        np.testing.assert_allclose(r @ up_enu, viewer_up, atol=1e-12)
+        v = read_ply(write_ply(tmp_path / f"{up}.ply", bm, frame=fr))
+        p = np.stack([v["x"], v["y"], v["z"]], 1)
+        np.testing.assert_allclose(p, 2.0 * (p_ref - fr.centre_m) @ r.T, atol=1e-4)
+        n = np.stack([v["nx"], v["ny"], v["nz"]], 1)
+        np.testing.assert_allclose(n, np.stack([ref["nx"], ref["ny"], ref["nz"]], 1) @ r.T, atol=1e-5)
+        np.testing.assert_allclose(v["scale_0"], ref["scale_0"] + np.log(2.0), atol=1e-6)
+        q = torch.tensor(np.stack([v[f"rot_{i}"] for i in range(4)], 1))
+        q0 = torch.tensor(np.stack([ref[f"rot_{i}"] for i in range(4)], 1))
+        np.testing.assert_allclose(quat_to_rotmat(q).numpy(), r @ quat_to_rotmat(q0).numpy(), atol=1e-5)
+        for zen, az in ((0.0, 0.0), (35.0, 150.0), (60.0, 60.0)):          # the viewer sees the same colours
+            wo = direction_from_angles_deg(zen, az)
+            np.testing.assert_allclose(_viewer_colour(v, 3, r @ wo), _viewer_colour(ref, 3, wo), atol=1e-4)
+    # SuperSplat / PlayCanvas rotate a PLY by 180° about z on load (splat-transform's viewer: setLocalEulerAngles(0, 0, 180))
+    load = np.diag([-1.0, -1.0, 1.0])
+    np.testing.assert_allclose(load @ PlyFrame(up="-y").rotation @ up_enu, [0, 1, 0], atol=1e-12)
+
+
+def test_export_cli_for_supersplat(tmp_path):
+    import json
+
+    from brfgs.cli import main
+
+    bm = carpet_model(half_m=2.0, n_bands=4, components=("iso",))
+    write_model_file(tmp_path / "run" / "model.safetensors", bm)
+    assert main(["export", str(tmp_path / "run"), str(tmp_path / "e"), "--for", "supersplat"]) == 0
+    info = json.loads((tmp_path / "e" / "export.json").read_text())
+    assert info["ply_frame"]["up"] == "-y" and info["ply_frame"]["rotation_enu_to_ply"][1] == [0.0, 0.0, -1.0]
+    v = read_ply(tmp_path / "e" / "gaussians.ply")
+    assert abs(float(np.median(v["x"]))) < 0.6 and np.allclose(v["y"], 0.0, atol=1e-6)   # centred; ground at y = 0
+    assert main(["export", str(tmp_path / "run"), str(tmp_path / "f"), "--for", "supersplat", "--up", "y"]) == 2
+    assert main(["export", str(tmp_path / "run"), str(tmp_path / "g"), "--up", "x"]) == 2
+    assert not (tmp_path / "g").exists()

@@ -77,7 +77,8 @@ def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None)
                                 f"{scene.name} {name} [{lm.appearance}] vs {against}: PSNR {m['psnr'] or float('nan'):.2f} dB"
                                 + (f", SAM {m['sam']:.4f} rad" if m.get("sam") is not None else ""))
     if out is not None and r.cube is not None:
-        write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm)
+        write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm,
+                   default_bands=lm.cir_indices, ignore_value=float("nan"))
     return scores
 
 

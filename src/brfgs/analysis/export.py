@@ -31,6 +31,14 @@ Colours (``view_dependence``):
   the decoded CIR colour is fitted like any other model.
 - ``"none"`` or a model without view dependence: f_dc is the colour at nadir view
   (ω_o = +z), f_rest all zero (viewers show that colour from everywhere).
+
+Frame (``up``, :func:`ply_frame`): ``"z"`` (default) writes the scene's own frame, ENU metres,
+z up. Splat viewers are y-up: ``"y"`` writes x = east, y = up, z = south (glTF's axes), and
+``"-y"`` writes the 3DGS/COLMAP convention that SuperSplat and PlayCanvas's viewer expect
+(x = east, y = down, z = north; they turn a PLY 180° about z on load, which puts +y up). Both
+y frames are centred on the scene (the Gaussians' median) and optionally scaled: x' = s·R(x − c);
+rotations (rot_*), normals and the SH colours (fitted in the rotated frame) follow R, log scales
+add log s. ``export.json`` records R, c and s so positions map back to ENU metres.
 """
 
 from __future__ import annotations
@@ -54,7 +62,8 @@ from brfgs.errors import UserError
 from brfgs.model import TrainedModel
 from brfgs.data import atomic
 
-__all__ = ["SH_C0", "STANDARD_PROPERTIES", "N_SH_REST", "VIEW_DEPENDENCE", "gaussian_cir_colours",
+__all__ = ["SH_C0", "STANDARD_PROPERTIES", "N_SH_REST", "VIEW_DEPENDENCE", "UP_AXES", "VIEWER_TARGETS", "PlyFrame",
+           "ply_frame", "gaussian_cir_colours",
            "hemisphere_directions", "fit_cir_sh", "write_ply", "read_ply", "ExportOptions", "export_model"]
 
 SH_C0 = 0.28209479177387814
@@ -63,6 +72,57 @@ STANDARD_PROPERTIES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_
                        + [f"f_rest_{i}" for i in range(3 * N_SH_REST)] + ["opacity"]
                        + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
 VIEW_DEPENDENCE = ("fit", "none")
+UP_AXES = {"z": 0.0, "y": -90.0, "-y": 90.0}   # rotation about +x (deg) from ENU to the PLY frame
+VIEWER_TARGETS = {"supersplat": "-y", "playcanvas": "-y", "enu": "z"}
+
+
+@dataclass(frozen=True)
+class PlyFrame:
+    """The PLY's frame: x_ply = scale · R (x_enu − centre_m)."""
+
+    up: str = "z"
+    centre_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scale: float = 1.0
+
+    @property
+    def angle_rad(self) -> float:
+        return float(np.radians(UP_AXES[self.up]))
+
+    @property
+    def rotation(self) -> np.ndarray:  # [3, 3]
+        c, s = np.cos(self.angle_rad), np.sin(self.angle_rad)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]).round(12)
+
+    @property
+    def quaternion(self) -> np.ndarray:  # [4] (w, x, y, z) of R
+        return np.array([np.cos(self.angle_rad / 2), np.sin(self.angle_rad / 2), 0.0, 0.0])
+
+    @property
+    def is_identity(self) -> bool:
+        return self.up == "z" and self.scale == 1.0 and not any(self.centre_m)
+
+    def describe(self) -> dict:
+        return {"up": self.up, "rotation_enu_to_ply": self.rotation.tolist(), "centre_m": list(self.centre_m),
+                "scale": self.scale, "formula": "x_ply = scale * R @ (x_enu - centre_m)"}
+
+
+def ply_frame(tm: TrainedModel, up: str = "z", scale: float = 1.0, centre: bool | None = None) -> PlyFrame:
+    """The frame for ``up`` ("z", "y", "-y"); centred on the scene unless ``centre`` is False
+    (default: centred for the y-up frames, not for "z")."""
+    if up not in UP_AXES:
+        raise UserError(f"expected one of {', '.join(UP_AXES)}, got {up!r}", field="--up")
+    if not (np.isfinite(scale) and scale > 0):
+        raise UserError(f"must be a positive number, got {scale!r}", field="--scale")
+    centre = up != "z" if centre is None else centre
+    c = tuple(float(v) for v in tm.scene_centre_m()) if centre else (0.0, 0.0, 0.0)
+    return PlyFrame(up=up, centre_m=c, scale=float(scale))
+
+
+def _quat_mul(a: Tensor, b: Tensor) -> Tensor:  # [4] ⊗ [N, 4] -> [N, 4], (w, x, y, z)
+    w1, x1, y1, z1 = a.unbind(-1)
+    w2, x2, y2, z2 = b.unbind(-1)
+    return torch.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
 
 
 def _cir_of(
@@ -124,21 +184,23 @@ def _sh_cir_exact(tm: TrainedModel) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 @torch.no_grad()
-def fit_cir_sh(tm: TrainedModel, n_directions: int = 48, max_zenith_deg: float = 80.0, chunk: int = 2048
-               ) -> tuple[np.ndarray, np.ndarray, dict]:
+def fit_cir_sh(tm: TrainedModel, n_directions: int = 48, max_zenith_deg: float = 80.0, chunk: int = 2048,
+               rotation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """Degree-3 SH fit of every Gaussian's view-dependent CIR colour (see the module docstring).
 
     Returns (f_dc [N, 3], f_rest [N, 3, 15] in the 3DGS channel-major layout, info): a viewer
     computes colour = clip(C0·f_dc + Σ_k Y_k(−ω_o)·f_rest[:, :, k−1] + 0.5, 0, 1) and gets the
     CIR colour of the model for view direction ω_o to the accuracy reported in ``info``
-    (RMS and max residual over the sampled directions, colour units).
+    (RMS and max residual over the sampled directions, colour units). ``rotation`` [3, 3]: the
+    PLY frame's R (ENU → PLY); the SH argument is then R(−ω_o), the direction in the PLY's frame.
     """
-    exact = _sh_cir_exact(tm)
+    rot = np.eye(3) if rotation is None else np.asarray(rotation, float)
+    exact = _sh_cir_exact(tm) if np.allclose(rot, np.eye(3)) else None
     if exact is not None:
         return exact[0].astype(np.float32), exact[1].astype(np.float32), {"method": "copied (CIR SH head)"}
     up = hemisphere_directions(n_directions, max_zenith_deg)                       # ω_o, [K, 3]
     both = np.concatenate([up, up * np.array([1.0, 1.0, -1.0])])                   # mirrored below the ground
-    basis = sh_basis(3, torch.from_numpy(-both)).numpy()                           # viewer argument −ω_o, [2K, 16]
+    basis = sh_basis(3, torch.from_numpy(-both @ rot.T)).numpy()                   # viewer argument R(−ω_o), [2K, 16]
     pinv = np.linalg.pinv(basis)                                                    # [16, 2K]
     kdir = len(up)
     omega_i = tm.sun_direction()
@@ -168,11 +230,11 @@ def fit_cir_sh(tm: TrainedModel, n_directions: int = 48, max_zenith_deg: float =
 
 
 def _ply_colours(tm: TrainedModel, colours: np.ndarray | None, view_dependence: str, n_directions: int,
-                 info: dict) -> tuple[np.ndarray, np.ndarray]:
+                 info: dict, frame: PlyFrame) -> tuple[np.ndarray, np.ndarray]:
     """(f_dc [N, 3], f_rest [N, 3, 15]) of the PLY (see the module docstring); ``info`` gets the method."""
     view_dep = tm.appearance == "neural" or (tm.head_cfg is not None and tm.head_cfg.view_dependent)
     if colours is None and view_dependence == "fit" and view_dep:
-        fdc, rest, fit = fit_cir_sh(tm, n_directions=n_directions)
+        fdc, rest, fit = fit_cir_sh(tm, n_directions=n_directions, rotation=frame.rotation)
         info.update(fit)
         return fdc, rest
     if colours is None:
@@ -183,16 +245,21 @@ def _ply_colours(tm: TrainedModel, colours: np.ndarray | None, view_dependence: 
     return (np.asarray(colours, np.float32) - 0.5) / SH_C0, np.zeros((tm.n_gaussians, 3, N_SH_REST), np.float32)
 
 
-def _ply_columns(tm: TrainedModel, fdc: np.ndarray, rest: np.ndarray) -> dict[str, np.ndarray]:
-    """{property: [N]} in PLY order: the standard 3DGS set, then the BRF parameters."""
+def _ply_columns(tm: TrainedModel, fdc: np.ndarray, rest: np.ndarray, frame: PlyFrame) -> dict[str, np.ndarray]:
+    """{property: [N]} in PLY order: the standard 3DGS set (in ``frame``), then the BRF parameters."""
     m = tm.gaussians
     quats = m.quats.detach().float()
     qn = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     log_scales = m.params["log_scales"].detach().float()
     normals = gaussian_normals(quats, log_scales.exp(), torch.tensor([0.0, 0.0, 1.0]).expand(m.n, 3))
+    rot = torch.as_tensor(frame.rotation, dtype=torch.float64)
+    means = frame.scale * (m.means.detach().double() - torch.as_tensor(frame.centre_m, dtype=torch.float64)) @ rot.T
+    normals = (normals.double() @ rot.T).float()
+    qn = _quat_mul(torch.as_tensor(frame.quaternion, dtype=torch.float64), qn.double()).float()
+    log_scales = log_scales + float(np.log(frame.scale))
     cols: dict[str, np.ndarray] = {}
     for j, k in enumerate("xyz"):
-        cols[k] = m.means.detach().float()[:, j].numpy()
+        cols[k] = means[:, j].float().numpy()
     for j, k in enumerate(("nx", "ny", "nz")):
         cols[k] = normals[:, j].numpy()
     for j in range(3):
@@ -226,18 +293,21 @@ def write_ply(
     view_dependence: str = "fit",
     n_directions: int = 48,
     info: dict | None = None,
+    frame: PlyFrame | None = None,
 ) -> Path:
     """Write the Gaussians of ``tm`` as a 3DGS PLY with BRF extras (see the module docstring).
 
     ``colours`` [N, 3] in [0, 1]: explicit view-independent colours (f_rest zero).
     ``info``: a dict that receives how the colours were made (method, fit residuals).
+    ``frame``: the PLY's frame (default: ENU metres, as the model).
     """
+    frame = PlyFrame() if frame is None else frame
     if view_dependence not in VIEW_DEPENDENCE:
         raise UserError(f"view dependence must be one of {', '.join(VIEW_DEPENDENCE)}, got {view_dependence!r}",
                         field="--view-dependence")
     info = {} if info is None else info
-    fdc, rest = _ply_colours(tm, colours, view_dependence, n_directions, info)
-    cols = _ply_columns(tm, fdc, rest)
+    fdc, rest = _ply_colours(tm, colours, view_dependence, n_directions, info, frame)
+    cols = _ply_columns(tm, fdc, rest, frame)
     arr = np.empty(tm.n_gaussians, dtype=[(k, "<f4") for k in cols])
     for k, v in cols.items():
         arr[k] = np.asarray(v, np.float32)
@@ -247,7 +317,8 @@ def write_ply(
     comments = [f"brfgs BRF-GS export: scene {tm.scene_name}",
                 f"f_dc/f_rest = CIR (850/650/550 nm) colour as SH degree 3: {info['method']}",
                 f"wavelengths_nm {tm.wavelengths_nm.min():.1f}-{tm.wavelengths_nm.max():.1f} "
-                f"({len(tm.wavelengths_nm)} bands); z_* are latent (decode with the model file)"]
+                f"({len(tm.wavelengths_nm)} bands); z_* are latent (decode with the model file)",
+                f"frame: up {frame.up}, x_ply = {frame.scale:g} * R (x_enu - {list(frame.centre_m)})"]
     with atomic.atomic_path(path) as tmp:
         PlyData([el], text=False, byte_order="<", comments=comments).write(str(tmp))
     return path
@@ -276,6 +347,9 @@ class ExportOptions:
 
     view_dependence: str = "fit"   # "fit" | "none"
     sh_directions: int = 48        # view directions sampled per Gaussian for the SH fit
+    up: str = "z"                  # "z" (ENU), "y" (y-up, glTF axes), "-y" (3DGS/SuperSplat/PlayCanvas)
+    scale: float = 1.0             # PLY units per metre
+    centre: bool | None = None     # centre on the scene (default: for the y frames)
     overwrite: bool = False
 
 
@@ -290,15 +364,18 @@ def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = 
     """``brfgs export``: write OUT/gaussians.ply (:func:`write_ply`), a copy of the model file that
     loads on its own (OUT/model.safetensors) and OUT/export.json; returns what export.json holds."""
     opts = ExportOptions() if opts is None else opts
+    if opts.up not in UP_AXES:
+        raise UserError(f"expected one of {', '.join(UP_AXES)}, got {opts.up!r}", field="--up")
     if opts.view_dependence not in VIEW_DEPENDENCE:
         raise UserError(f"expected 'fit' or 'none', got {opts.view_dependence!r}", field="--view-dependence")
     tm = TrainedModel.load(run)
     out = prepare_output_dir(Path(out), "export.json", opts.overwrite, tm.scene_root)
     src = Path(tm.source)
+    frame = ply_frame(tm, opts.up, opts.scale, opts.centre)
     colour_info: dict = {}
     t0 = time.perf_counter()
     ply = write_ply(out / "gaussians.ply", tm, view_dependence=opts.view_dependence, n_directions=opts.sh_directions,
-                    info=colour_info)
+                    info=colour_info, frame=frame)
     t_ply = time.perf_counter() - t0
     dst = out / "model.safetensors"
     _copy_model_file(src, dst)
@@ -311,6 +388,7 @@ def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = 
             "ply_colours": {"space": "CIR composite (850/650/550 nm as R/G/B, scaled like the training data)",
                             "sun_zenith_deg": tm.sun_zenith_deg, "sun_azimuth_deg": tm.sun_azimuth_deg,
                             **colour_info},
+            "ply_frame": frame.describe(),
             "timings_s": {"ply": t_ply},
             "model_format": "safetensors + JSON metadata (brfgs-gaussians/1); loading never executes code"}
     atomic.write_json(out / "export.json", info)

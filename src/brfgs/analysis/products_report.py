@@ -79,8 +79,8 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
         if name not in products:
             continue
         cube = products[name]
-        hdr = write_envi(out / f"{name}.hdr", cube, wl, tm.fwhm_nm,
-                         extra={"description": f"brfgs {descriptions[name]}"})
+        hdr = write_envi(out / f"{name}.hdr", cube, wl, tm.fwhm_nm, extra={"description": f"brfgs {descriptions[name]}"},
+                         default_bands=tm.cir_indices, ignore_value=float("nan"))
         if name in _REFLECTANCES:
             png = plots.save_rgb_png(out / f"{name}.png", cir_composite(cube, tm.cir_indices, tm.cir_scale))
         else:

@@ -98,7 +98,8 @@ def _write_view(out: Path, tm: TrainedModel, rv: RenderedView, description: str)
     files = {}
     if rv.cube is not None:
         files["cube"] = str(write_envi(out / "cube.hdr", rv.cube, tm.wavelengths_nm, tm.fwhm_nm,
-                                       extra={"description": description}))
+                                       extra={"description": description}, default_bands=tm.cir_indices,
+                                       ignore_value=float("nan")))
     files["cir_png"] = str(plots.save_rgb_png(out / "cir.png", rv.cir))
     atomic.save_npy(out / "depth.npy", rv.depth.astype(np.float32))
     atomic.save_npy(out / "alpha.npy", rv.alpha.astype(np.float32))

@@ -23,11 +23,15 @@ CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
 
 
 def write_envi(path_hdr: str | Path, cube: np.ndarray, wavelengths_nm, fwhm_nm=None,
-               extra: dict | None = None) -> Path:
+               extra: dict | None = None, *, default_bands=None, ignore_value: float | None = None) -> Path:
     """Write ``cube`` [H, W, B] as an ENVI float32 cube ``path_hdr`` + ``.img``.
 
-    The header holds ``wavelength`` (nm), ``wavelength units`` and ``fwhm``. Byte-identical
-    output for identical input (no timestamps). Returns the header path.
+    The header holds ``wavelength`` (nm), ``wavelength units``, ``fwhm``, ``band names``
+    ("<wavelength> nm", which GDAL shows as band descriptions), ``default bands`` (the RGB a
+    viewer shows first; ``default_bands`` are 0-based band indices, written 1-based as ENVI
+    wants) and ``data ignore value`` (``ignore_value``; NaN is written as ``nan``, which GDAL
+    reads as the no-data value). Byte-identical output for identical input (no timestamps).
+    Returns the header path.
     """
     path_hdr = Path(path_hdr)
     cube = np.ascontiguousarray(cube, dtype=np.float32)
@@ -37,6 +41,15 @@ def write_envi(path_hdr: str | Path, cube: np.ndarray, wavelengths_nm, fwhm_nm=N
             "wavelength": [f"{w:.4f}" for w in np.asarray(wavelengths_nm, float)]}
     if fwhm_nm is not None:
         meta["fwhm"] = [f"{w:.4f}" for w in np.asarray(fwhm_nm, float)]
+    if len(meta["wavelength"]) == cube.shape[2]:
+        meta["band names"] = [f"{w:.1f} nm" for w in np.asarray(wavelengths_nm, float)]
+    if default_bands is not None:
+        idx = [int(i) for i in default_bands]
+        if any(not 0 <= i < cube.shape[2] for i in idx):
+            raise ValueError(f"default bands {idx} outside 0..{cube.shape[2] - 1}")
+        meta["default bands"] = [str(i + 1) for i in idx]
+    if ignore_value is not None:
+        meta["data ignore value"] = "nan" if np.isnan(ignore_value) else f"{float(ignore_value):g}"
     if extra:
         meta.update(extra)
     # both files under temporary names (SPy writes the .img beside the .hdr it is given), the data
