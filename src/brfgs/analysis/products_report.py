@@ -21,6 +21,7 @@ import numpy as np
 from brfgs.analysis import plots
 from brfgs.analysis import products as P
 from brfgs.analysis.brf import auto_roi_size
+from brfgs.analysis.georaster import MapGrid, envi_map_info, map_camera, map_grid, write_geotiff
 from brfgs.analysis.mcd43_maps import MCD43_NAMES, render_mcd43
 from brfgs.analysis.options import check_size
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
@@ -69,9 +70,11 @@ def _descriptions(nbar_sun_zenith_deg: float, albedo_sun_zenith_deg: float) -> d
             "wsa_mcd43": "MCD43 white-sky albedo from f"}
 
 
-def write_product_files(out: Path, tm: TrainedModel, products: dict, descriptions: dict[str, str]) -> dict:
+def write_product_files(out: Path, tm: TrainedModel, products: dict, descriptions: dict[str, str],
+                        grid: MapGrid | None = None) -> dict:
     """One ENVI cube NAME.hdr and one NAME.png per product of ``products`` (cubes [H, W, B]) and
-    alpha.npy; returns {name: {cube, png, description, mean_at_nm, finite_fraction}}."""
+    alpha.npy; with a map ``grid`` also NAME.tif (Cloud-Optimized GeoTIFF) and ENVI ``map info``.
+    Returns {name: {cube, png, [geotiff,] description, mean_at_nm, finite_fraction}}."""
     wl = tm.wavelengths_nm
     i_map = int(np.argmin(np.abs(wl - _MAP_BAND_NM)))
     files = {}
@@ -79,8 +82,9 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
         if name not in products:
             continue
         cube = products[name]
-        hdr = write_envi(out / f"{name}.hdr", cube, wl, tm.fwhm_nm, extra={"description": f"brfgs {descriptions[name]}"},
-                         default_bands=tm.cir_indices, ignore_value=float("nan"))
+        extra = {"description": f"brfgs {descriptions[name]}", **(envi_map_info(grid) if grid else {})}
+        hdr = write_envi(out / f"{name}.hdr", cube, wl, tm.fwhm_nm, extra=extra, default_bands=tm.cir_indices,
+                         ignore_value=float("nan"))
         if name in _REFLECTANCES:
             png = plots.save_rgb_png(out / f"{name}.png", cir_composite(cube, tm.cir_indices, tm.cir_scale))
         else:
@@ -88,7 +92,10 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
                                      diverging=(name not in _NOT_SIGNED), label="max/min" if name == "anix" else "reflectance")
         band = cube[..., i_map]
         ok = np.isfinite(band)
+        if grid is not None:
+            write_geotiff(out / f"{name}.tif", cube, grid, wl, f"brfgs {descriptions[name]}")
         files[name] = {"cube": hdr.name, "png": png.name, "description": descriptions[name],
+                       **({"geotiff": f"{name}.tif"} if grid is not None else {}),
                        "mean_at_nm": float(band[ok].mean()) if ok.any() else None,
                        "finite_fraction": float(ok.mean())}
     atomic.save_npy(out / "alpha.npy", products["alpha"].astype(np.float32))
@@ -114,9 +121,10 @@ def _suns(tm: TrainedModel, opts: ProductsOptions) -> tuple[float, float, float]
     return sz, nz, az
 
 
-def _camera(tm: TrainedModel, opts: ProductsOptions) -> tuple[np.ndarray, Intrinsics]:
+def _camera(tm: TrainedModel, opts: ProductsOptions) -> tuple[np.ndarray, Intrinsics, MapGrid | None]:
     """The nadir camera (c2w [4, 4], intrinsics) of the maps: ``opts.size`` pixels, or the training
-    images' pixel footprint on the ground (at most 2048 px)."""
+    images' pixel footprint on the ground (at most 2048 px); for a georeferenced scene turned to
+    map north, with its map grid."""
     if opts.size is None:
         half = tm.scene_half_extent_m() if opts.half_extent_m is None else opts.half_extent_m
         wh = [auto_roi_size(tm, half, lo=16, hi=2048)]
@@ -126,7 +134,13 @@ def _camera(tm: TrainedModel, opts: ProductsOptions) -> tuple[np.ndarray, Intrin
     c2w, intr = P.nadir_camera(tm, size=int(wh[0]), half_extent_m=opts.half_extent_m)
     if len(wh) == 2:
         intr = Intrinsics(intr.fl_x, intr.fl_x, wh[0] / 2, wh[1] / 2, int(wh[0]), int(wh[1]))
-    return c2w, intr
+    mf = tm.map_frame
+    if mf is None:
+        return c2w, intr, None
+    half = tm.scene_half_extent_m() if opts.half_extent_m is None else opts.half_extent_m
+    c2w = map_camera(mf, c2w, half)
+    target = np.r_[c2w[:2, 3], tm.scene_centre_m()[2]]
+    return c2w, intr, map_grid(mf, c2w, intr, target)
 
 
 def products_report(run: str | Path, opts: ProductsOptions | None = None, out: str | Path | None = None) -> Report:
@@ -136,7 +150,7 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
     tm = TrainedModel.load(run)
     P.require_hybrid(tm)
     sz, nz, az = _suns(tm, opts)
-    c2w, intr = _camera(tm, opts)
+    c2w, intr, grid = _camera(tm, opts)
     out = Path(out) if out is not None else run_folder(Path(run)) / "analysis" / "products"
     prepare_output_dir(out, "products.json", opts.overwrite, tm.scene_root)
     t0 = time.perf_counter()
@@ -151,11 +165,12 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
         res.update({k: fit[k] for k in MCD43_NAMES})
         res["settings"]["mcd43"] = fit["settings"]
         res["settings"]["mcd43"]["fit_seconds"] = time.perf_counter() - t1
-    files = write_product_files(out, tm, res, _descriptions(nz, az))
+    files = write_product_files(out, tm, res, _descriptions(nz, az), grid)
     wl = tm.wavelengths_nm
     info = {"model": tm.source, "scene": tm.scene_name, "settings": res["settings"],
             "camera": {"c2w": c2w.tolist(), "intrinsics": intrinsics_json(intr)},
-            "files": files, "mean_band_nm": float(wl[int(np.argmin(np.abs(wl - _MAP_BAND_NM)))]),
+            "files": files, "map": grid.describe(tm.map_frame) if grid is not None else None,
+            "mean_band_nm": float(wl[int(np.argmin(np.abs(wl - _MAP_BAND_NM)))]),
             "timings_s": {"render_products_s": t_render},
             "notes": ["contributions are decoded sequentially (iso, +vol, +geo, +spec); they add up to 'total'",
                       "albedo integrals are applied in the latent space (brfgs.brdf.integrals); Cook-Torrance "

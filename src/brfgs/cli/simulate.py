@@ -25,6 +25,10 @@ def register(app: typer.Typer) -> None:
         sun_azimuth: float = typer.Option(150.0, "--sun-azimuth",
                                           help="Sun azimuth, degrees clockwise from north."),
         seed: int = typer.Option(0, "--seed", help="Seed of every random choice."),
+        origin: str = typer.Option(None, "--origin", metavar="LAT,LON[,ALT]",
+                                   help="Put the scene on the Earth: WGS 84 latitude, longitude (deg) and "
+                                   "ellipsoidal height (m) of the scene centre, written to transforms.json; "
+                                   "products are then georeferenced (UTM zone of the origin)."),
         distance: float = typer.Option(100.0, "--distance", help="Camera distance from the scene centre, m."),
         fov: float = typer.Option(35.0, "--fov", help="Horizontal field of view, degrees."),
         noise_scale: float = typer.Option(1.0, "--noise-scale", help="Multiplies the dark noise sigma_b."),
@@ -36,12 +40,14 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Render an AIR-BRF-like acquisition (nadir + 12 azimuths x 18/23/38/58 deg) with ground truth."""
+        from brfgs.analysis.options import parse_floats
         from brfgs.sim import SimConfig, simulate
 
         cfg = SimConfig(scene=scene, size=size, bands=bands, views=views, spp=spp, sun_zenith_deg=sun_zenith,
                         sun_azimuth_deg=sun_azimuth, seed=seed, distance_m=distance, fov_deg=fov,
                         noise_scale=noise_scale, shot_coeff=shot_coeff, n_dark=n_dark, max_depth=max_depth,
-                        sampler=sampler)
+                        sampler=sampler,
+                        origin=None if origin is None else tuple(parse_floats(origin, "--origin")))
         path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
         t = simulate.last_timing
         per_view = sorted(t["view_s"])[len(t["view_s"]) // 2] if t["view_s"] else float("nan")

@@ -24,6 +24,7 @@ from brfgs.data import validation as V
 from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
+from brfgs.data.georef import Origin, read_georef
 from brfgs.data.splits import ring_name, stratified_pick, view_rings
 from brfgs.errors import UserError
 
@@ -71,6 +72,8 @@ class Scene:
     _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
     allow_outside_links: bool = False       # files that links lead to outside the scene folder may be read
     invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
+    origin: Origin | None = None            # the ENU frame on the Earth (brfgs.data.georef), if given
+    crs: str | None = None                  # map CRS of products (default: the origin's UTM zone)
 
     # ----- geometry -------------------------------------------------------------------------------
     @property
@@ -230,6 +233,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         fwhm_all = V.number_list(meta["fwhm_nm"], tf, "fwhm_nm", length=len(wl_all))
     sun_zen = V.number(_required(meta, "sun_zenith_deg", tf), tf, "sun_zenith_deg", lo=0.0, hi=89.999)
     sun_az = V.number(_required(meta, "sun_azimuth_deg", tf), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
+    origin, crs = read_georef(meta, tf)
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
     frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr, allow_outside_links)
@@ -244,7 +248,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
                   dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
                   value_range=(float(lo), float(hi)), split_seed=split_seed, validation=validation,
-                  full_intrinsics=full_intr,
+                  full_intrinsics=full_intr, origin=origin, crs=crs,
                   _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
     return scene
 

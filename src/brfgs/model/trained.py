@@ -24,6 +24,7 @@ from torch import Tensor
 from brfgs.brdf.geometry import shading_normals, sun_direction
 from brfgs.brdf.head import HeadConfig, evaluate_head
 from brfgs.data.cameras import Intrinsics
+from brfgs.data.georef import MapFrame, default_crs, read_georef
 from brfgs.errors import UserError
 from brfgs.model import io
 from brfgs.model.camera import Camera, cameras_from_description, intrinsics_from_description
@@ -105,6 +106,12 @@ class TrainedModel:
     def cameras(self) -> list[Camera]:
         """One camera per training frame, in frame order."""
         return cameras_from_description(self.scene)
+
+    @cached_property
+    def map_frame(self) -> MapFrame | None:
+        """The scene's georeference (origin and map CRS, :mod:`brfgs.data.georef`), None if not given."""
+        origin, crs = read_georef(self.scene)
+        return None if origin is None else MapFrame(origin, crs or default_crs(origin))
 
     @property
     def scene_root(self) -> str | None:

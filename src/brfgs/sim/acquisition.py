@@ -352,6 +352,7 @@ def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> di
         "sun_zenith_deg": float(cfg.sun_zenith_deg),
         "sun_azimuth_deg": float(cfg.sun_azimuth_deg),
         "dark_frames": dark_paths,
+        **({"origin": cfg.origin_json()} if cfg.origin is not None else {}),
         "simulator": {"scene": cfg.scene, "seed": int(cfg.seed), "truth": "truth/"},
         "frames": frames,
     }

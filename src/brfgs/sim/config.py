@@ -54,6 +54,7 @@ class SimConfig:
     max_depth: int = 10
     texture_px: int = 0
     sampler: str = "ldsampler"
+    origin: tuple[float, ...] | None = None   # (latitude deg, longitude deg[, altitude m]) of the ENU origin
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
@@ -107,6 +108,17 @@ class SimConfig:
         req(int(self.max_depth) >= 1, "max_depth must be at least 1", "max_depth")
         req(int(self.texture_px) == 0 or int(self.texture_px) >= 16, "texture_px must be 0 (auto) or >= 16",
             "texture_px")
+        if self.origin is not None:
+            o = list(self.origin)
+            req(len(o) in (2, 3) and all(math.isfinite(float(v)) for v in o) and abs(float(o[0])) < 89.9
+                and abs(float(o[1])) <= 180.0, f"origin must be LAT,LON[,ALT] in degrees (and metres), got {o}", "origin")
+
+    def origin_json(self) -> dict | None:
+        """The ``origin`` entry of transforms.json (brfgs.data.georef), or None."""
+        if self.origin is None:
+            return None
+        o = [float(v) for v in self.origin]
+        return {"latitude_deg": o[0], "longitude_deg": o[1], "altitude_m": o[2] if len(o) > 2 else 0.0}
 
     # derived quantities
     def wavelengths_nm(self) -> np.ndarray:
@@ -131,4 +143,6 @@ class SimConfig:
         names = {f.name for f in fields(cls)}
         kw = {k: v for k, v in d.items() if k in names}
         kw.setdefault("sampler", "independent")  # scenes written before the sampler option
+        if kw.get("origin") is not None:
+            kw["origin"] = tuple(kw["origin"])
         return cls(**kw)
