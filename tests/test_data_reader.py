@@ -46,7 +46,9 @@ def test_downscale_is_area_average_and_roi_band_subset(tmp_path):
     np.testing.assert_allclose(uv_small, (uv_full - [4, 0]) / 4, atol=1e-9)
 
 
-def test_npy_and_geotiff_cubes(tmp_path):
+@pytest.mark.parametrize("compression", [None, "lzw", "deflate", "zstd"])
+def test_npy_and_geotiff_cubes(tmp_path, compression):
+    """Band-first GeoTIFF cubes, uncompressed and with the usual compressions (imagecodecs), tiled for zstd."""
     import tifffile
 
     root = make_scene(tmp_path / "s", fmt="npy")
@@ -58,7 +60,8 @@ def test_npy_and_geotiff_cubes(tmp_path):
     for fr in meta["frames"]:
         cube = np.load(root / fr["file_path"])
         tif = fr["file_path"].replace(".npy", ".tif")
-        tifffile.imwrite(root / tif, np.moveaxis(cube, -1, 0), photometric="minisblack", planarconfig="separate")
+        tifffile.imwrite(root / tif, np.moveaxis(cube, -1, 0), photometric="minisblack", planarconfig="separate",
+                         compression=compression, tile=(16, 16) if compression == "zstd" else None)
         fr["file_path"] = tif
     (root / "transforms.json").write_text(json.dumps(meta))
     sc2 = read_scene(root, downscale=2)

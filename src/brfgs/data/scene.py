@@ -25,6 +25,7 @@ from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.data.georef import Origin, read_georef
+from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
 from brfgs.data.splits import ring_name, stratified_pick, view_rings
 from brfgs.errors import UserError
 
@@ -45,6 +46,7 @@ class Frame:
     view_azimuth_deg: float
     split: str                      # "train" | "validation" | "test"
     split_given: bool = False       # True if transforms.json fixed it
+    camera: FrameCamera | None = None   # its own (distorted or other) camera, resampled on reading
 
 
 @dataclass
@@ -167,8 +169,7 @@ class Scene:
         """
         src = self._sources[i]
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
-        cube = read_block_averaged(src, file_bands, self.roi, self.downscale, self.value_range,
-                                    self.frames[i].name)
+        cube = self._read(i, src, file_bands, self.value_range)
         n_bad = int((~np.isfinite(cube)).any(-1).sum())
         if bands is None:
             self.invalid_counts[self.frames[i].name] = n_bad
@@ -193,8 +194,20 @@ class Scene:
         if (src.lines, src.samples) != (self._sources[i].lines, self._sources[i].samples):
             raise UserError(f"truth cube is {src.samples}x{src.lines}, the image "
                             f"{self._sources[i].samples}x{self._sources[i].lines}", file=hdr)
-        return read_block_averaged(src, self.band_indices, self.roi, self.downscale, (-np.inf, np.inf),
-                                    self.frames[i].name)
+        return self._read(i, src, self.band_indices, (-np.inf, np.inf))
+
+    def _read(self, i: int, src: CubeSource, file_bands: np.ndarray, value_range) -> np.ndarray:
+        """Bands of frame ``i``'s cube on the scene's pinhole camera, ROI and downscale applied; a frame
+        with its own camera is read whole and resampled first (brfgs.data.undistort)."""
+        cam = self.frames[i].camera
+        if cam is None or (src.lines, src.samples) != (cam.intrinsics.h, cam.intrinsics.w):
+            return read_block_averaged(src, file_bands, self.roi, self.downscale, value_range, self.frames[i].name)
+        full = read_block_averaged(src, file_bands, None, 1, value_range, self.frames[i].name)
+        full = resample_cube(full, cam, self.full_intrinsics)
+        x0, y0, rw, rh = self.roi if self.roi is not None else (0, 0, full.shape[1], full.shape[0])
+        f = self.downscale
+        crop = full[y0:y0 + rh // f * f, x0:x0 + rw // f * f]
+        return crop.reshape(rh // f, f, rw // f, f, -1).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
 
     def valid_mask(self, i: int, image: np.ndarray | None = None) -> np.ndarray:
         """Bool [H, W]: pixels whose every band is finite (pass ``image`` to avoid re-reading)."""
@@ -226,7 +239,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     lo, hi = value_range
     if not lo < hi:
         raise UserError(f"value range must have min < max, got {value_range}", field="value_range")
-    full_intr = _read_intrinsics(meta, tf)
+    full_intr, cam_keys = _read_intrinsics(meta, tf)
     wl_all = V.wavelengths(_required(meta, "wavelengths_nm", tf), tf, "wavelengths_nm")
     fwhm_all = None
     if meta.get("fwhm_nm") is not None:
@@ -236,7 +249,8 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     origin, crs = read_georef(meta, tf)
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
-    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, full_intr, allow_outside_links)
+    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, (full_intr, cam_keys),
+                                   allow_outside_links)
     _assign_split(frames, split_seed, validation)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
@@ -284,22 +298,18 @@ def _required(meta: dict, key: str, tf: Path):
     return meta[key]
 
 
-def _read_intrinsics(meta: dict, tf: Path) -> Intrinsics:
-    """Full-resolution pinhole intrinsics of transforms.json, checked."""
-    model = meta.get("camera_model", "PINHOLE")
-    if model != "PINHOLE":
-        raise UserError(f"camera model {model!r} not supported, expected 'PINHOLE'", file=tf, field="camera_model")
-    w = V.number(_required(meta, "w", tf), tf, "w", lo=1, integer=True)
-    h = V.number(_required(meta, "h", tf), tf, "h", lo=1, integer=True)
-    fl_x = V.number(_required(meta, "fl_x", tf), tf, "fl_x", lo=1e-9)
-    fl_y = V.number(_required(meta, "fl_y", tf), tf, "fl_y", lo=1e-9)
-    cx = V.number(_required(meta, "cx", tf), tf, "cx")
-    cy = V.number(_required(meta, "cy", tf), tf, "cy")
-    if not 0 < cx < w:
-        raise UserError(f"principal point cx = {cx:g} lies outside the image width w = {w}", file=tf, field="cx")
-    if not 0 < cy < h:
-        raise UserError(f"principal point cy = {cy:g} lies outside the image height h = {h}", file=tf, field="cy")
-    return Intrinsics(fl_x, fl_y, cx, cy, w, h)
+def _read_intrinsics(meta: dict, tf: Path) -> tuple[Intrinsics, dict]:
+    """(full-resolution pinhole intrinsics every frame is resampled to, the top-level camera keys
+    that frames inherit): the top level's, or the first frame's when the top level has none."""
+    base = {k: meta[k] for k in ("camera_model", "fl_x", "fl_y", "cx", "cy", "w", "h", *DIST_KEYS) if k in meta}
+    cam = read_frame_camera(meta, tf, "")
+    frames = meta.get("frames")
+    if cam is None and isinstance(frames, list) and frames and isinstance(frames[0], dict):
+        cam = read_frame_camera(frames[0], tf, "frames[0].", base)
+    if cam is None:
+        missing = [k for k in ("fl_x", "fl_y", "cx", "cy", "w", "h") if meta.get(k) is None]
+        raise UserError("required field missing (at the top level or in every frame)", file=tf, field=missing[0])
+    return cam.intrinsics, base
 
 
 def _band_subset(bands, n_bands_file: int) -> np.ndarray:
@@ -330,7 +340,7 @@ def _crop_and_scale(full_intr: Intrinsics, roi, downscale: int) -> tuple[Intrins
     return intr.scaled(downscale), roi
 
 
-def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray, full_intr: Intrinsics,
+def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray, cameras: tuple[Intrinsics, dict],
                  allow_outside_links: bool = False) -> tuple[list[Frame], list[CubeSource]]:
     """Frames of transforms.json (poses, nominal angles, requested split) and how to read their cubes."""
     if not isinstance(frames_meta, list):
@@ -342,17 +352,17 @@ def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray, full_int
     sources: list[CubeSource] = []
     names: set[str] = set()
     for k, fm in enumerate(frames_meta):
-        frame, src = _read_frame(root, tf, k, fm, names, wl_all, (full_intr, allow_outside_links))
+        frame, src = _read_frame(root, tf, k, fm, names, wl_all, (*cameras, allow_outside_links))
         frames.append(frame)
         sources.append(src)
     return frames, sources
 
 
 def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.ndarray,
-                camera: tuple[Intrinsics, bool]) -> tuple[Frame, CubeSource]:
+                camera: tuple[Intrinsics, dict, bool]) -> tuple[Frame, CubeSource]:
     """Frame ``k`` of transforms.json and its cube source; adds its name to ``names``.
-    ``camera``: (full-resolution intrinsics, allow_outside_links)."""
-    full_intr, allow_outside_links = camera
+    ``camera``: (full-resolution pinhole intrinsics, top-level camera keys, allow_outside_links)."""
+    full_intr, cam_keys, allow_outside_links = camera
     fld = f"frames[{k}]"
     if not isinstance(fm, dict):
         raise UserError("expected an object", file=tf, field=fld)
@@ -384,11 +394,13 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
     if split is not None and split not in ("train", "test"):
         raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
     src = open_cube(cube_path, wl_all, tf, name, allow_outside_links)
-    w, h = full_intr.w, full_intr.h
+    own = read_frame_camera(fm, tf, f"{fld}.", cam_keys)
+    w, h = own.intrinsics.w, own.intrinsics.h
     if (src.lines, src.samples) != (h, w):
         raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
                         f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
-    return Frame(name, cube_path, c2w, vz, va, split or "", split is not None), src
+    own = None if own.is_pinhole_like(full_intr) else own
+    return Frame(name, cube_path, c2w, vz, va, split or "", split is not None, own), src
 
 
 def _assign_split(frames: list[Frame], seed: int, validation: bool = False) -> None:
