@@ -90,6 +90,15 @@ def test_known_poses(toy, tmp_path):
     cams = json.loads((out / "cameras.json").read_text())
     assert len(cams["frames"]) == 13 and not (out / "colmap").exists()
     assert "matching success rate" in (out / "init_report.md").read_text()
+    # the cameras and points as a COLMAP model that pycolmap opens, poses as in cameras.json
+    from brfgs.init.colmap_io import read_colmap_model
+
+    rec = read_colmap_model(out / "sparse" / "0")
+    assert rec.num_images() == int(res.registered.sum()) and rec.num_points3D() == len(res.points)
+    im = rec.find_image_with_name(toy.frames[4].name)
+    w2c = np.eye(4)
+    w2c[:3, :] = im.cam_from_world().matrix()
+    np.testing.assert_allclose(np.linalg.inv(w2c) @ np.diag([1.0, -1.0, -1.0, 1.0]), res.c2w[4], atol=1e-6)
 
 
 # ----------------------------------------------------------------------------------- SfM

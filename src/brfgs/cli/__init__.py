@@ -41,6 +41,7 @@ app = typer.Typer(
 # Command modules in pipeline order; each defines register(app).
 COMMAND_MODULES = [
     "brfgs.cli.demo",        # demo: the whole pipeline on a simulated scene
+    "brfgs.cli.import_",     # import colmap: COLMAP model + cubes + sidecar -> transforms.json
     "brfgs.cli.inspect",     # inspect: read + validate a scene, summary and polar plot
     "brfgs.cli.simulate",    # simulate: Mitsuba scenes with truth
     "brfgs.cli.bands",       # select-bands: EFC band selection

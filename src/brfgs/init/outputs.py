@@ -63,8 +63,8 @@ def write_points_ply(path: Path, points, colors, wavelengths_nm, band_indices, t
 
 
 def write_outputs(out: Path, scene, res, selection=None) -> None:
-    """OUT/points.ply, cameras.json, init_report.{json,md} and (with ``selection``) bands.json of an
-    :class:`brfgs.init.api.InitResult`."""
+    """OUT/points.ply, cameras.json, sparse/0 (the cameras and points as a COLMAP model),
+    init_report.{json,md} and (with ``selection``) bands.json of an :class:`brfgs.init.api.InitResult`."""
     out.mkdir(parents=True, exist_ok=True)
     wl = [float(scene.wavelengths_nm[i]) for i in res.band_indices]
     write_points_ply(out / "points.ply", res.points, res.colors, wl, res.band_indices, res.track_length,
@@ -76,6 +76,10 @@ def write_outputs(out: Path, scene, res, selection=None) -> None:
             "frames": [{"name": f.name, "transform_matrix": res.c2w[i].tolist(), "registered": bool(res.registered[i])}
                        for i, f in enumerate(scene.frames)]}
     atomic.write_json(out / "cameras.json", cams)
+    # lazy: pycolmap stays out of `import brfgs.init` (it must follow zlib; see brfgs.init)
+    from brfgs.init.colmap_io import write_colmap_model
+
+    write_colmap_model(out / "sparse" / "0", intr, [f.name for f in scene.frames], res.c2w, res.registered, res.points)
     atomic.write_json(out / "init_report.json", res.report)
     atomic.write_text(out / "init_report.md", report_markdown(res.report))
     if selection is not None:

@@ -1,0 +1,179 @@
+"""COLMAP models in and out (pycolmap): ``brfgs import colmap`` and the model ``brfgs init`` writes.
+
+**Import** (:func:`import_colmap`): a COLMAP sparse model (binary or text, as COLMAP writes it), the
+folder of hyperspectral cubes whose file stems are the COLMAP image names' stems (``view_00.png`` →
+``images/view_00.hdr``, ``.tif``, ``.tiff`` or ``.npy``) and a small JSON sidecar become a
+``transforms.json`` (conventions.md) in the project folder. The sidecar holds what COLMAP does not
+know: ``wavelengths_nm`` (else read by the scene reader's checks from the cubes), ``fwhm_nm``,
+``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``,
+and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
+similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
+by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
+
+Cameras: PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL and RADIAL map to transforms.json's PINHOLE
+/ OPENCV keys (COLMAP's pixel centres are at +0.5, as brfgs's); the first image's camera is the
+top-level camera, frames of other cameras carry their own keys (resampled on reading, see
+:mod:`brfgs.data.undistort`). Poses: COLMAP's cam_from_world (OpenCV axes) → OpenGL camera-to-world.
+
+**Export** (:func:`write_colmap_model`): cameras and sparse points as a COLMAP model (one PINHOLE
+camera, one trivial rig and frame per image) that pycolmap and COLMAP open.
+"""
+
+from __future__ import annotations
+
+import zlib  # noqa: F401  (must precede pycolmap; see brfgs.init.colmap)
+import json
+from pathlib import Path
+
+import numpy as np
+
+import pycolmap
+
+from brfgs.data import atomic
+from brfgs.data.cameras import GL_TO_CV
+from brfgs.errors import UserError
+
+__all__ = ["CUBE_SUFFIXES", "read_colmap_model", "import_colmap", "write_colmap_model"]
+
+CUBE_SUFFIXES = (".hdr", ".tif", ".tiff", ".npy")
+_SIDECAR_KEYS = ("wavelengths_nm", "fwhm_nm", "sun_zenith_deg", "sun_azimuth_deg", "origin", "crs", "dark_frames",
+                 "dark_sigma")
+
+
+def read_colmap_model(path: Path):
+    """pycolmap.Reconstruction of a sparse model folder (cameras/images/points3D .bin or .txt)."""
+    path = Path(path)
+    if not any((path / f"cameras{ext}").is_file() for ext in (".bin", ".txt")):
+        raise UserError("not a COLMAP sparse model (no cameras.bin or cameras.txt)", file=path)
+    try:
+        return pycolmap.Reconstruction(str(path))
+    except Exception as exc:  # pycolmap raises RuntimeError/ValueError with COLMAP's message
+        raise UserError(f"COLMAP model could not be read ({exc})", file=path) from None
+
+
+def _camera_keys(cam, where: Path) -> dict:
+    """transforms.json camera keys of a pycolmap camera."""
+    name, p = cam.model.name, [float(v) for v in cam.params]
+    keys = {"w": int(cam.width), "h": int(cam.height)}
+    if name == "SIMPLE_PINHOLE":
+        return {"camera_model": "PINHOLE", "fl_x": p[0], "fl_y": p[0], "cx": p[1], "cy": p[2], **keys}
+    if name == "PINHOLE":
+        return {"camera_model": "PINHOLE", "fl_x": p[0], "fl_y": p[1], "cx": p[2], "cy": p[3], **keys}
+    dist = {"SIMPLE_RADIAL": (p[0], p[0], p[1], p[2], p[3], 0.0, 0.0, 0.0),
+            "RADIAL": (p[0], p[0], p[1], p[2], p[3], p[4], 0.0, 0.0),
+            "OPENCV": tuple(p)}.get(name)
+    if dist is None:
+        raise UserError(f"COLMAP camera model {name} not supported (PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL, "
+                        "RADIAL are)", file=where, field=f"camera {cam.camera_id}")
+    fx, fy, cx, cy, k1, k2, p1, p2 = dist
+    return {"camera_model": "OPENCV", "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **keys,
+            "k1": k1, "k2": k2, "p1": p1, "p2": p2}
+
+
+def _find_cube(images: Path, stem: str, where: Path) -> Path:
+    for suffix in CUBE_SUFFIXES:
+        if (images / f"{stem}{suffix}").is_file():
+            return images / f"{stem}{suffix}"
+    raise UserError(f"no cube {stem}{{{','.join(CUBE_SUFFIXES)}}} in {images} for COLMAP image {stem!r}", file=where)
+
+
+def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: Path) -> tuple[float, np.ndarray,
+                                                                                                np.ndarray, str]:
+    """(scale, R [3, 3], t [3], how) of ENU = s R x + t."""
+    if sidecar.get("enu_from_colmap") is not None:
+        m = np.asarray(sidecar["enu_from_colmap"], float)
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise UserError("expected a 4 x 4 similarity matrix", file=where, field="enu_from_colmap")
+        s = float(np.cbrt(np.linalg.det(m[:3, :3])))
+        r = m[:3, :3] / s
+        if s <= 0 or not np.allclose(r @ r.T, np.eye(3), atol=1e-6):
+            raise UserError("not a similarity (scale × rotation + translation)", file=where, field="enu_from_colmap")
+        return s, r, m[:3, 3], "enu_from_colmap"
+    pos = sidecar.get("camera_positions_enu")
+    if pos is None:
+        return 1.0, np.eye(3), np.zeros(3), "none (COLMAP frame taken as ENU metres)"
+    pairs = [(c2w[stems.index(k)][:3, 3], np.asarray(v, float)) for k, v in pos.items() if k in stems]
+    if len(pairs) < 3:
+        raise UserError(f"{len(pairs)} of the named images are in the COLMAP model; a similarity needs 3",
+                        file=where, field="camera_positions_enu")
+    src, dst = (np.stack(a) for a in zip(*pairs))
+    sim = pycolmap.estimate_sim3d(src, dst)
+    if sim is None:
+        raise UserError("the camera positions do not determine a similarity (collinear?)", file=where,
+                        field="camera_positions_enu")
+    m = sim.matrix()                                                       # [3, 4] = [s R | t]
+    return float(sim.scale), m[:3, :3] / float(sim.scale), m[:3, 3], \
+        f"pycolmap.estimate_sim3d on {len(pairs)} camera positions"
+
+
+def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path | None, overwrite: bool = False
+                  ) -> tuple[Path, dict]:
+    """Write ``project/transforms.json`` from a COLMAP model, a cube folder and a sidecar (module
+    docstring). Returns (its path, a summary). Refuses to replace an existing transforms.json unless
+    ``overwrite``; the cubes must lie inside ``project``."""
+    project = Path(project)
+    tf = project / "transforms.json"
+    if tf.exists() and not overwrite:
+        raise UserError("already exists; pass --overwrite to replace it", file=tf)
+    images = Path(images)
+    if not images.resolve().is_relative_to(project.resolve()):
+        raise UserError(f"the cube folder must lie inside the project folder {project}", file=images)
+    sidecar = {}
+    if sidecar_path is not None:
+        try:
+            sidecar = json.loads(Path(sidecar_path).read_text())
+        except (OSError, ValueError) as exc:
+            raise UserError(f"not a readable JSON sidecar ({exc})", file=sidecar_path) from None
+        if not isinstance(sidecar, dict):
+            raise UserError("expected a JSON object", file=sidecar_path)
+    rec = read_colmap_model(sparse)
+    regs = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    if not regs:
+        raise UserError("the COLMAP model has no registered image", file=sparse)
+    stems = [Path(im.name).stem for im in regs]
+    c2w = []
+    for im in regs:
+        w2c = np.eye(4)
+        w2c[:3, :] = im.cam_from_world().matrix()
+        c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
+    s, r, t, how = _similarity(sidecar, stems, c2w, Path(sidecar_path) if sidecar_path else sparse)
+    top = _camera_keys(rec.cameras[regs[0].camera_id], sparse)
+    frames = []
+    for im, stem, m in zip(regs, stems, c2w):
+        cube = _find_cube(images, stem, sparse)
+        enu = np.eye(4)
+        enu[:3, :3] = r @ m[:3, :3]
+        enu[:3, 3] = s * r @ m[:3, 3] + t
+        fr = {"file_path": cube.resolve().relative_to(project.resolve()).as_posix(), "transform_matrix": enu.tolist(),
+              "colmap_image_id": int(im.image_id)}
+        own = _camera_keys(rec.cameras[im.camera_id], sparse)
+        fr.update({k: v for k, v in own.items() if top.get(k) != v})
+        frames.append(fr)
+    meta = {**top, **{k: sidecar[k] for k in _SIDECAR_KEYS if k in sidecar}, "frames": frames,
+            "colmap": {"model": str(Path(sparse).resolve()), "enu_from_colmap": how, "scale": s}}
+    atomic.write_json(tf, meta)
+    return tf, {"frames": len(frames), "cameras": len({im.camera_id for im in regs}), "alignment": how,
+                "skipped_unregistered": len(rec.images) - len(regs)}
+
+
+def write_colmap_model(out: Path, intr, names: list[str], c2w_gl: np.ndarray, registered: np.ndarray,
+                       points: np.ndarray, colors: np.ndarray | None = None) -> Path:
+    """``out`` (binary COLMAP model: cameras, rigs, frames, images, points3D) of ENU-metre cameras
+    ``c2w_gl`` [F, 4, 4] (registered ones only) and ``points`` [P, 3]; ``colors`` [P, 3] in [0, 1]."""
+    rec = pycolmap.Reconstruction()
+    cam = pycolmap.Camera.create_from_model_name(1, "PINHOLE", float(intr.fl_x), int(intr.w), int(intr.h))
+    cam.params = np.array([intr.fl_x, intr.fl_y, intr.cx, intr.cy], float)
+    rec.add_camera_with_trivial_rig(cam)
+    for k, name in enumerate(names):
+        if not registered[k]:
+            continue
+        w2c = np.linalg.inv(np.asarray(c2w_gl[k], float) @ GL_TO_CV)
+        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3])
+        rec.add_image_with_trivial_frame(pycolmap.Image(name=name, camera_id=1, image_id=k + 1), pose)
+    rgb = np.zeros((len(points), 3), np.uint8) if colors is None else np.clip(np.asarray(colors) * 255, 0, 255)
+    for p, c in zip(np.asarray(points, float), np.asarray(rgb, np.uint8)):
+        rec.add_point3D(p, pycolmap.Track(), c)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rec.write(str(out))
+    return out

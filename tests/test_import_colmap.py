@@ -1,0 +1,90 @@
+"""`brfgs import colmap`: a COLMAP model (binary or text, in an arbitrary frame, PINHOLE or OPENCV) +
+cubes + sidecar becomes a scene whose cameras are the original ENU cameras."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from brfgs.cli import main
+from brfgs.data.scene import read_scene
+from brfgs.init.colmap_io import read_colmap_model, write_colmap_model
+from scenes import make_scene
+
+
+def _colmap_project(tmp_path, text: bool = False):
+    """make_scene's ENU cameras written as a COLMAP model in a frame rotated, scaled and moved away from ENU."""
+    root = make_scene(tmp_path / "p", n_frames=7, n_dark=0)
+    ref = read_scene(root)
+    meta = json.loads((root / "transforms.json").read_text())
+    (root / "transforms.json").unlink()
+    a = np.radians(40.0)
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]) @ np.array(
+        [[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    scale, t = 0.05, np.array([3.0, -1.0, 7.0])                        # COLMAP = scale · rot · ENU + t
+    c2w_colmap = []
+    for f in ref.frames:
+        m = np.eye(4)
+        m[:3, :3] = rot @ f.c2w[:3, :3]
+        m[:3, 3] = scale * rot @ f.c2w[:3, 3] + t
+        c2w_colmap.append(m)
+    names = [f"{f.name}.png" for f in ref.frames]
+    write_colmap_model(root / "sparse" / "0", ref.intrinsics, names, np.stack(c2w_colmap), np.ones(7, bool),
+                       np.zeros((0, 3)))
+    if text:
+        rec = read_colmap_model(root / "sparse" / "0")
+        for f in (root / "sparse" / "0").iterdir():
+            f.unlink()
+        rec.write_text(str(root / "sparse" / "0"))
+    side = {k: meta[k] for k in ("wavelengths_nm", "fwhm_nm", "sun_zenith_deg", "sun_azimuth_deg", "dark_sigma")}
+    side["camera_positions_enu"] = {f.name: f.c2w[:3, 3].tolist() for f in ref.frames[:5]}
+    (root / "spectral.json").write_text(json.dumps(side))
+    return root, ref
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_import_colmap_recovers_the_enu_cameras(tmp_path, text, capsys):
+    root, ref = _colmap_project(tmp_path, text)
+    assert main(["import", "colmap", str(root)]) == 0
+    assert "estimate_sim3d on 5 camera positions" in capsys.readouterr().out
+    sc = read_scene(root)
+    assert [f.name for f in sc.frames] == [f.name for f in ref.frames] and sc.intrinsics == ref.intrinsics
+    for a, b in zip(sc.frames, ref.frames):
+        np.testing.assert_allclose(a.c2w, b.c2w, atol=1e-6)
+    np.testing.assert_array_equal(sc.load_image(3), ref.load_image(3))
+    # a finished transforms.json is never overwritten silently
+    assert main(["import", "colmap", str(root)]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+
+
+def test_import_colmap_opencv_cameras_and_bad_input(tmp_path, capsys):
+    import zlib  # noqa: F401
+    import pycolmap
+
+    root, ref = _colmap_project(tmp_path)
+    rec = read_colmap_model(root / "sparse" / "0")
+    cam = rec.cameras[1]
+    i = ref.intrinsics
+    opencv = pycolmap.Camera.create_from_model_name(1, "OPENCV", i.fl_x, i.w, i.h)
+    opencv.params = np.array([i.fl_x, i.fl_y, i.cx, i.cy, -0.1, 0.02, 0.001, -0.001])
+    rec.cameras[1] = opencv
+    rec.write(str(root / "sparse" / "0"))
+    assert main(["import", "colmap", str(root)]) == 0
+    meta = json.loads((root / "transforms.json").read_text())
+    assert meta["camera_model"] == "OPENCV" and meta["k1"] == pytest.approx(-0.1)
+    assert read_scene(root).frames[0].camera is not None               # resampled onto the pinhole camera
+    del cam
+    # no cube for an image, a sidecar that is not JSON, too few positions
+    (root / "images" / "view_06.hdr").rename(root / "images" / "x.hdr")
+    assert main(["import", "colmap", str(root), "--overwrite"]) == 2
+    assert "view_06" in capsys.readouterr().err
+    (root / "images" / "x.hdr").rename(root / "images" / "view_06.hdr")
+    (root / "bad.json").write_text("{nope")
+    assert main(["import", "colmap", str(root), "--overwrite", "--sidecar", str(root / "bad.json")]) == 2
+    assert "bad.json" in capsys.readouterr().err
+    (root / "few.json").write_text(json.dumps({"camera_positions_enu": {"view_00": [0, 0, 100]}}))
+    assert main(["import", "colmap", str(root), "--overwrite", "--sidecar", str(root / "few.json")]) == 2
+    assert "camera_positions_enu" in capsys.readouterr().err
+    assert main(["import", "colmap", str(tmp_path / "nowhere")]) == 2
