@@ -97,3 +97,30 @@ def test_stage1_colors_sh_rest_terms():
         + (c1 * z)[:, None] * rest[:, 1].double() + (-c1 * x)[:, None] * rest[:, 2].double()
     assert torch.allclose(stage1_colors(m, cam).double(), ref, atol=1e-5)
     assert torch.allclose(sh_basis(1, d)[:, 1], -c1 * y)
+
+
+def test_centred_form_with_frame_suns_is_eq12_under_each_frames_sun():
+    """Frames with their own suns share one centring (the reference sun): the trained centred form
+    under frame sun ω_f equals eq. 12 (after uncentre with the reference sun) evaluated under ω_f."""
+    m = _random_model(30, 4, seed=1)
+    cfg = HeadConfig(kind="hybrid")
+    params = init_head_params(cfg, 30, 4, z_init=torch.randn(30, 4))
+    for k in ("z_vol", "z_geo", "z_spec"):
+        params[k] = torch.randn(30, 4)
+    params["rho_raw"] = torch.randn(30)
+    m.set_head(params, "brf")
+    m.centred = True
+    ref = torch.tensor([0.2, -0.5, 0.84])
+    ref = ref / ref.norm()
+    plain = uncentre(m, cfg, ref)
+    wo = view_dirs(m.means, torch.tensor([20.0, -15.0, 90.0]))
+    n = gaussian_normals(m.quats, m.scales, wo)
+    keys = ("z_iso", "z_vol", "z_geo", "z_spec", "rho_raw")
+    for frame_sun in (torch.tensor([0.25, -0.45, 0.86]), torch.tensor([0.1, -0.6, 0.79])):
+        frame_sun = frame_sun / frame_sun.norm()
+        a = centred_hybrid_latent(m, cfg, n, frame_sun, wo, ref_sun=ref)
+        b = evaluate_head(cfg, {k: plain[k] for k in keys}, n, frame_sun, wo)
+        assert torch.allclose(a, b, atol=1e-4), (a - b).abs().max()
+        # centring with the frame's own sun instead would be a different model: the reference matters
+        c = centred_hybrid_latent(m, cfg, n, frame_sun, wo)
+        assert (c - b).abs().max() > 1e-3

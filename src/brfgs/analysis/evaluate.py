@@ -65,7 +65,8 @@ def _references(scene, i: int) -> dict:
 def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> dict:
     """{against: metrics} of test view ``i``; with ``out``, the CIR comparison PNGs and the ENVI render."""
     name = scene.frames[i].name
-    r = render(lm, lm.cameras[i], backend=backend)
+    sun_z, sun_a = lm.frame_sun(i)                               # a held-out view under its own sun
+    r = render(lm, lm.cameras[i], sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend)
     scores = {}
     for against, (ref, ok) in _references(scene, i).items():
         ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)

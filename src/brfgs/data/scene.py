@@ -25,6 +25,7 @@ from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.data.georef import Origin, read_georef
+from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
 from brfgs.data.splits import ring_name, stratified_pick, view_rings
 from brfgs.errors import UserError
@@ -47,6 +48,9 @@ class Frame:
     split: str                      # "train" | "validation" | "test"
     split_given: bool = False       # True if transforms.json fixed it
     camera: FrameCamera | None = None   # its own (distorted or other) camera, resampled on reading
+    sun_zenith_deg: float = float("nan")    # the sun of this frame (brfgs.data.sun)
+    sun_azimuth_deg: float = float("nan")
+    time_utc: str | None = None
 
 
 @dataclass
@@ -244,13 +248,14 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     fwhm_all = None
     if meta.get("fwhm_nm") is not None:
         fwhm_all = V.number_list(meta["fwhm_nm"], tf, "fwhm_nm", length=len(wl_all))
-    sun_zen = V.number(_required(meta, "sun_zenith_deg", tf), tf, "sun_zenith_deg", lo=0.0, hi=89.999)
-    sun_az = V.number(_required(meta, "sun_azimuth_deg", tf), tf, "sun_azimuth_deg", lo=-360.0, hi=360.0)
     origin, crs = read_georef(meta, tf)
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
     frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, (full_intr, cam_keys),
                                    allow_outside_links)
+    zen, azi, sun_zen, sun_az, times = frame_suns(meta, origin, tf)
+    for f, z, a, t in zip(frames, zen, azi, times):
+        f.sun_zenith_deg, f.sun_azimuth_deg, f.time_utc = float(z), float(a), None if t is None else t.isoformat()
     _assign_split(frames, split_seed, validation)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,

@@ -73,6 +73,15 @@ def cameras_from_description(desc: dict) -> list[Camera]:
     return [camera_from_c2w(fr["name"], np.array(fr["c2w"]), intr.K(), intr.w, intr.h) for fr in desc["frames"]]
 
 
+def _frame_sun(f) -> dict:
+    """A frame's own sun (brfgs.data.sun) for the model file, when the frame has one."""
+    z = getattr(f, "sun_zenith_deg", float("nan"))
+    if not np.isfinite(z):
+        return {}
+    out = {"sun_zenith_deg": float(z), "sun_azimuth_deg": float(f.sun_azimuth_deg)}
+    return {**out, "time_utc": f.time_utc} if getattr(f, "time_utc", None) else out
+
+
 def scene_description(scene, c2w: np.ndarray) -> dict:
     """JSON-ready description of a :class:`brfgs.data.Scene` as trained, with the poses ``c2w``
     [F, 4, 4] (OpenGL) the training used (known or SfM): what model files carry so that a model
@@ -97,6 +106,7 @@ def scene_description(scene, c2w: np.ndarray) -> dict:
                 "c2w": np.asarray(c2w[i], float).tolist(),
                 "view_zenith_deg": float(f.view_zenith_deg),
                 "view_azimuth_deg": float(f.view_azimuth_deg),
+                **_frame_sun(f),
             }
             for i, f in enumerate(scene.frames)
         ],

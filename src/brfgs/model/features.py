@@ -58,6 +58,7 @@ def gaussian_features(
     sun_dir: Tensor,  # [3] unit, toward the sun
     head_cfg: HeadConfig | None,
     neural: NeuralHead | None = None,
+    ref_sun: Tensor | None = None,  # [3] the centring sun of the centred form (default: sun_dir)
 ) -> Tensor:  # [N, C]
     """Per-Gaussian latent (or CIR colour of the "cir" variant) [N, C] for ``cam``: the appearance
     head (hybrid eq. 12 or SH) or the neural head; the centred training form when ``model.centred``."""
@@ -69,7 +70,7 @@ def gaussian_features(
     if head_cfg.needs_normals:
         normals = shading_normals(model.quats, model.scales, omega_o, model.params.get("normals"))
     if model.centred and head_cfg.kind == "hybrid":
-        return centred_hybrid_latent(model, head_cfg, normals, sun_dir, omega_o)
+        return centred_hybrid_latent(model, head_cfg, normals, sun_dir, omega_o, ref_sun)
     return evaluate_head(head_cfg, head_params(model), normals, sun_dir, omega_o)
 
 
@@ -138,18 +139,20 @@ def centred_hybrid_latent(
     normals: Tensor | None,  # [N, 3] shading normals (None without the specular term)
     sun_dir: Tensor,  # [3]
     omega_o: Tensor,  # [N, 3]
+    ref_sun: Tensor | None = None,  # [3] the centring sun (default: sun_dir)
 ) -> Tensor:  # [N, d]
     """Eq. 12 in the centred (NBAR-like) parametrisation used during training, [N, d]:
 
-        z_k(omega_i, omega_o) = z'_iso + sum_j z_j (K_j(omega_i, omega_o) - K_j(omega_i, nadir))
+        z_k(omega_i, omega_o) = z'_iso + sum_j z_j (K_j(omega_i, omega_o) - K_j(omega_ref, nadir))
 
-    z'_iso is then the latent of a nadir view. Same function class as eq. 12 (the Li-Sparse
+    z'_iso is then the latent of a nadir view under the reference sun ω_ref (the scene's: one
+    centring for every frame, also when frames have their own suns). Same function class as eq. 12 (the Li-Sparse
     kernel is about -1 at every geometry, which makes z_iso and z_geo nearly collinear in the
     plain form and slows Adam); :func:`uncentre` converts back to eq. 12 for saving.
     """
     comps = head_cfg.components
     ks = _hybrid_kernels_at(model, head_cfg, normals, sun_dir, omega_o)
-    ref = kernel_reference(model, head_cfg, sun_dir)
+    ref = kernel_reference(model, head_cfg, sun_dir if ref_sun is None else ref_sun)
     out = model["z_iso"] if "iso" in comps else None
     for c in ("vol", "geo", "spec"):
         if c not in comps:

@@ -144,6 +144,13 @@ class TrainedModel:
         """Whether it was trained (and so renders) with Mip-Splatting's 2D filter (option ``antialias``)."""
         return bool(self.config.get("antialias", False))
 
+    def frame_sun(self, i: int) -> tuple[float, float]:
+        """(zenith, azimuth) deg of training frame ``i``'s own sun (brfgs.data.sun), else the scene's."""
+        fr = self.frames[i] if 0 <= i < len(self.frames) else {}
+        if fr.get("sun_zenith_deg") is None:
+            return self.sun_zenith_deg, self.sun_azimuth_deg
+        return float(fr["sun_zenith_deg"]), float(fr["sun_azimuth_deg"])
+
     def sun_direction(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None) -> Tensor:
         """ω_i [3] (float32) for the given sun or the acquisition's."""
         z = self.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg

@@ -132,6 +132,9 @@ class TrainConfig:
                             "--validation/--no-validation")
     decode: str = _opt("pixel", "Spectral decoding order: pixel (alpha-blend latents, decode each pixel) or gaussian "
                        "(paper eq. 13 as published: decode each Gaussian's latent for the view, blend spectra).")
+    frame_suns: bool = _opt(True, "Evaluate every training view's kernels under its own sun (frames' sun_zenith_deg/"
+                            "sun_azimuth_deg or time, brfgs.data.sun); --no-frame-suns: the scene's one sun for all.",
+                            "--frame-suns/--no-frame-suns")
 
     def validate(self) -> "TrainConfig":
         if self.variant not in VARIANTS:

@@ -66,9 +66,17 @@ class TrainState:
 
     @property
     def sun(self) -> Tensor:
-        """ω_i [3] of the acquisition."""
+        """ω_i [3] of the acquisition's reference sun (the scene's; the centring sun of the head)."""
         sc = self.meta["scene"]
         return sun_direction(sc["sun_zenith_deg"], sc["sun_azimuth_deg"])
+
+    def sun_of(self, i: int) -> Tensor:
+        """ω_i [3] of training frame ``i``: its own sun (brfgs.data.sun) unless the option
+        ``frame_suns`` is off or it has none; then the reference sun."""
+        fr = self.meta["scene"]["frames"][i]
+        if not self.cfg.frame_suns or fr.get("sun_zenith_deg") is None:
+            return self.sun
+        return sun_direction(fr["sun_zenith_deg"], fr["sun_azimuth_deg"])
 
     def stage1_bands(self) -> list[int]:
         """Band indices stage 1 fits (runs made before stage1_cir_bands existed: the selected bands)."""

@@ -86,13 +86,12 @@ def neighbours(means: Tensor, k: int = 8) -> Tensor:  # [N, k] long
     return torch.as_tensor(np.asarray(nbr).reshape(n, -1)[:, 1:], dtype=torch.long)
 
 
-def _features(state: TrainState, cfg: TrainConfig, phase: Phase, cam: Camera) -> Tensor:
-    """Per-Gaussian features [N, C] the phase renders."""
+def _features(state: TrainState, cfg: TrainConfig, phase: Phase, cam: Camera, i: int) -> Tensor:
+    """Per-Gaussian features [N, C] the phase renders for training frame ``i`` (under its sun)."""
     if phase == Phase.STAGE1:
         return stage1_colors(state.gaussians, cam)
-    if phase == Phase.CIR:
-        return gaussian_features(state.gaussians, cam, state.sun, head_config(cfg))
-    return gaussian_features(state.gaussians, cam, state.sun, head_config(cfg), state.neural)
+    neural = state.neural if phase != Phase.CIR else None
+    return gaussian_features(state.gaussians, cam, state.sun_of(i), head_config(cfg), neural, ref_sun=state.sun)
 
 
 def _geometry_channels(state: TrainState, cfg: TrainConfig, cam: Camera) -> list[Tensor]:
@@ -191,7 +190,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     c = cfg
     surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0
     use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
-    feats = _features(state, cfg, phase, batch.cam)
+    feats = _features(state, cfg, phase, batch.cam, batch.index)
     by_gaussian = c.decode == "gaussian" and phase in (Phase.STAGE2, Phase.JOINT)
     subset = None
     if by_gaussian:
