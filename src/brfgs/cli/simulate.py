@@ -25,6 +25,13 @@ def register(app: typer.Typer) -> None:
         sun_azimuth: float = typer.Option(150.0, "--sun-azimuth",
                                           help="Sun azimuth, degrees clockwise from north."),
         seed: int = typer.Option(0, "--seed", help="Seed of every random choice."),
+        start_time: str = typer.Option(None, "--start-time", help="UTC time of the first view (ISO 8601, e.g. "
+                                       "2024-06-21T07:00:00Z; needs --origin): every view gets its time and the sun "
+                                       "of that time (NREL SPA), so the sun moves over the flight."),
+        duration: float = typer.Option(0.0, "--duration-min", help="Minutes from the first to the last view."),
+        irradiance_drift: float = typer.Option(0.0, "--irradiance-drift", help="Amplitude d of a smooth per-view "
+                                               "drift of the downwelling irradiance (factor in [1-d, 1+d], written "
+                                               "as each frame's irradiance_scale)."),
         origin: str = typer.Option(None, "--origin", metavar="LAT,LON[,ALT]",
                                    help="Put the scene on the Earth: WGS 84 latitude, longitude (deg) and "
                                    "ellipsoidal height (m) of the scene centre, written to transforms.json; "
@@ -46,7 +53,8 @@ def register(app: typer.Typer) -> None:
         cfg = SimConfig(scene=scene, size=size, bands=bands, views=views, spp=spp, sun_zenith_deg=sun_zenith,
                         sun_azimuth_deg=sun_azimuth, seed=seed, distance_m=distance, fov_deg=fov,
                         noise_scale=noise_scale, shot_coeff=shot_coeff, n_dark=n_dark, max_depth=max_depth,
-                        sampler=sampler,
+                        sampler=sampler, start_time=start_time, duration_min=duration,
+                        irradiance_drift=irradiance_drift,
                         origin=None if origin is None else tuple(parse_floats(origin, "--origin")))
         path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
         t = simulate.last_timing

@@ -51,6 +51,7 @@ class Frame:
     sun_zenith_deg: float = float("nan")    # the sun of this frame (brfgs.data.sun)
     sun_azimuth_deg: float = float("nan")
     time_utc: str | None = None
+    irradiance_scale: float = 1.0           # downwelling irradiance / nominal (sensor or panel): images are divided
 
 
 @dataclass
@@ -174,6 +175,8 @@ class Scene:
         src = self._sources[i]
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
         cube = self._read(i, src, file_bands, self.value_range)
+        if self.frames[i].irradiance_scale != 1.0:   # reflectance under the nominal irradiance
+            cube /= np.float32(self.frames[i].irradiance_scale)
         n_bad = int((~np.isfinite(cube)).any(-1).sum())
         if bands is None:
             self.invalid_counts[self.frames[i].name] = n_bad
@@ -254,8 +257,11 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, (full_intr, cam_keys),
                                    allow_outside_links)
     zen, azi, sun_zen, sun_az, times = frame_suns(meta, origin, tf)
-    for f, z, a, t in zip(frames, zen, azi, times):
+    for k, (f, z, a, t) in enumerate(zip(frames, zen, azi, times)):
         f.sun_zenith_deg, f.sun_azimuth_deg, f.time_utc = float(z), float(a), None if t is None else t.isoformat()
+        if meta["frames"][k].get("irradiance_scale") is not None:
+            f.irradiance_scale = V.number(meta["frames"][k]["irradiance_scale"], tf, f"frames[{k}].irradiance_scale",
+                                          lo=1e-3, hi=1e3)
     _assign_split(frames, split_seed, validation)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,

@@ -65,7 +65,8 @@ def _make_renderer(cfg: SimConfig, bands=None, spp: int | None = None):
     fw = cfg.fwhm_array_nm()
     if bands is not None:
         wl, fw = wl[list(bands)], fw[list(bands)]
-    return geom, BandTripletRenderer(geom, wl, fw, float(cfg.sun_zenith_deg), float(cfg.sun_azimuth_deg),
+    ref = _reference_sun(cfg)                      # the fixed sun, or the middle view's of a timed flight
+    return geom, BandTripletRenderer(geom, wl, fw, ref["sun_zenith_deg"], ref["sun_azimuth_deg"],
                                      spp=int(cfg.spp if spp is None else spp), max_depth=int(cfg.max_depth),
                                      sampler=cfg.sampler)
 
@@ -225,6 +226,9 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
     sigma = cfg.sigma_b()
     intr = cfg.intrinsics()
     angles = paper_view_angles(int(cfg.views))
+    sun_z, sun_a = cfg.view_suns()                       # the sun may move over the flight
+    times = cfg.view_times()
+    scales = cfg.irradiance_scales()                     # downwelling irradiance drift
     frames = []
     preview_of: dict[str, np.ndarray] = {}
     timings = []
@@ -237,17 +241,20 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
         c2w = pose_from_view_angles(z, a, float(cfg.distance_m))
         frames.append({"file_path": f"images/{name}.hdr", "transform_matrix": c2w.tolist(),
                        "view_zenith_deg": float(z), "view_azimuth_deg": float(a),
-                       "distance_m": float(cfg.distance_m)})
+                       "distance_m": float(cfg.distance_m),
+                       **({"time": times[i]} if times else {}),
+                       **({"irradiance_scale": float(scales[i])} if cfg.irradiance_drift > 0 else {})})
         is_preview = z == 0.0 or _is_preview_oblique(z, a, angles, cfg)
         if name in done:  # resumed run: this view is complete on disk
             if is_preview:
                 preview_of[name] = np.fromfile(out / "images" / f"{name}.img", "<f4").reshape(
                     intr.h, intr.w, len(wl))
             continue
+        rend.set_sun(float(sun_z[i]), float(sun_a[i]))
         clean = rend.render_cube(c2w, intr, render_seed(cfg.seed, z, a))
         depth, mat = rend.raycast(c2w, intr)
         rng = np.random.default_rng([int(cfg.seed), 7, i])
-        obs = observe(clean, sigma, float(cfg.shot_coeff), rng)
+        obs = observe(clean * np.float32(scales[i]), sigma, float(cfg.shot_coeff), rng)
         write_envi(out / "images" / f"{name}.hdr", obs, wl, fwhm)
         write_envi(out / "truth" / "images" / f"{name}.hdr", clean, wl, fwhm)
         (out / "truth" / "depth").mkdir(parents=True, exist_ok=True)
@@ -331,7 +338,9 @@ def _write_truth_tables(out: Path, cfg: SimConfig, geom, rend) -> None:
         "illumination": {
             "definition": "reflectance = pi * L / E_down; E_down (horizontal downwelling irradiance) = 1 in "
                           "every band; directional sun + uniform sky over the upper hemisphere",
-            "sun_zenith_deg": float(cfg.sun_zenith_deg), "sun_azimuth_deg": float(cfg.sun_azimuth_deg),
+            **_reference_sun(cfg),
+            "view_suns_deg": [[float(z), float(a)] for z, a in zip(*cfg.view_suns())],
+            "irradiance_scales": [float(v) for v in cfg.irradiance_scales()],
             "sky_fraction": [float(v) for v in rend.sky_fraction]},
         "world": "ENU metres, z up, scene centre at the origin; ground extends to +-2000 m",
         "n_triangles": geom.n_triangles(),
@@ -339,6 +348,13 @@ def _write_truth_tables(out: Path, cfg: SimConfig, geom, rend) -> None:
         "objects": geom.objects,
         "depth": "truth/depth/<name>.npy: float32 [H, W], metres along the optical axis through the pixel "
                  "centre, NaN where nothing is hit"})
+
+
+def _reference_sun(cfg: SimConfig) -> dict:
+    """The top-level sun of transforms.json: the fixed sun, or the middle view's when it moves."""
+    z, a = cfg.view_suns()
+    k = len(z) // 2 if cfg.start_time is not None else 0
+    return {"sun_zenith_deg": float(z[k]), "sun_azimuth_deg": float(a[k])}
 
 
 def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> dict:
@@ -349,8 +365,7 @@ def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> di
         "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
         "wavelengths_nm": [float(w) for w in cfg.wavelengths_nm()],
         "fwhm_nm": [float(w) for w in cfg.fwhm_array_nm()],
-        "sun_zenith_deg": float(cfg.sun_zenith_deg),
-        "sun_azimuth_deg": float(cfg.sun_azimuth_deg),
+        **_reference_sun(cfg),
         "dark_frames": dark_paths,
         **({"origin": cfg.origin_json()} if cfg.origin is not None else {}),
         "simulator": {"scene": cfg.scene, "seed": int(cfg.seed), "truth": "truth/"},

@@ -6,8 +6,11 @@ import math
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
+import pandas as pd
 
 from brfgs.data.cameras import Intrinsics
+from brfgs.data.georef import Origin
+from brfgs.data.sun import solar_position
 from brfgs.errors import UserError
 from brfgs.sim import spectra as sp
 from brfgs.sim.geometry import SCENES
@@ -55,6 +58,9 @@ class SimConfig:
     texture_px: int = 0
     sampler: str = "ldsampler"
     origin: tuple[float, ...] | None = None   # (latitude deg, longitude deg[, altitude m]) of the ENU origin
+    start_time: str | None = None             # UTC time of the first view: the sun moves over the flight (origin)
+    duration_min: float = 0.0                 # minutes from the first to the last view (views evenly spaced)
+    irradiance_drift: float = 0.0             # per-view downwelling irradiance factor in [1 - d, 1 + d]
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
@@ -112,6 +118,42 @@ class SimConfig:
             o = list(self.origin)
             req(len(o) in (2, 3) and all(math.isfinite(float(v)) for v in o) and abs(float(o[0])) < 89.9
                 and abs(float(o[1])) <= 180.0, f"origin must be LAT,LON[,ALT] in degrees (and metres), got {o}", "origin")
+
+        if self.start_time is not None:
+            req(self.origin is not None, "a start time needs the origin (where the sun is computed)", "start_time")
+            req(0.0 <= float(self.duration_min) <= 600.0, "duration must be 0-600 minutes", "duration_min")
+        req(0.0 <= float(self.irradiance_drift) < 0.9, "irradiance drift must be in [0, 0.9)", "irradiance_drift")
+
+    def view_times(self) -> list[str] | None:
+        """UTC ISO time of every view (acquisition order), or None without a start time."""
+        if self.start_time is None:
+            return None
+        t0 = pd.Timestamp(self.start_time)
+        if t0.tzinfo is None:
+            raise UserError(f"start time needs a UTC offset (e.g. 'Z'), got {self.start_time!r}", field="start_time")
+        n = int(self.views)
+        step = pd.Timedelta(minutes=float(self.duration_min) / max(n - 1, 1))
+        return [(t0 + k * step).tz_convert("UTC").isoformat() for k in range(n)]
+
+    def irradiance_scales(self) -> np.ndarray:
+        """Per-view factor [V] of the downwelling irradiance (a smooth drift of amplitude
+        ``irradiance_drift`` over the flight, phase from the seed): 1 everywhere without drift."""
+        n = int(self.views)
+        if self.irradiance_drift <= 0:
+            return np.ones(n)
+        phase = np.random.default_rng([int(self.seed), 11]).uniform(0, 2 * np.pi)
+        t = np.arange(n) / max(n - 1, 1)
+        return 1.0 + float(self.irradiance_drift) * np.sin(2 * np.pi * 1.5 * t + phase)
+
+    def view_suns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(zenith, azimuth) deg [V] of the sun at every view: from the view times at the origin
+        (pvlib's NREL SPA, brfgs.data.sun) or the fixed ``sun_zenith_deg``/``sun_azimuth_deg``."""
+        times = self.view_times()
+        if times is None:
+            n = int(self.views)
+            return np.full(n, float(self.sun_zenith_deg)), np.full(n, float(self.sun_azimuth_deg))
+        o = self.origin_json()
+        return solar_position(times, Origin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"]))
 
     def origin_json(self) -> dict | None:
         """The ``origin`` entry of transforms.json (brfgs.data.georef), or None."""

@@ -165,6 +165,7 @@ class BandTripletRenderer:
         self.sun_irradiance_normal = (1.0 - self.sky_fraction) / cos_s  # [B]
         self.sky_radiance = self.sky_fraction / math.pi  # [B]
         omega_i = direction_from_angles_deg(sun_zenith_deg, sun_azimuth_deg)  # toward the sun
+        self.sun_deg = (float(sun_zenith_deg), float(sun_azimuth_deg))
 
         # materials used by the scene, with band-averaged spectra
         names = sorted({p.material for p in geometry.parts}, key=lambda n: MATERIAL_IDS[n])
@@ -243,6 +244,21 @@ class BandTripletRenderer:
         entry["bsdf"] = bsdf
         self._bsdfs.append(entry)
         return bsdf
+
+    def set_sun(self, sun_zenith_deg: float, sun_azimuth_deg: float) -> None:
+        """Move the sun (a flight's later frame): its direction, and its beam irradiance so that the
+        horizontal downwelling irradiance stays 1 in every band."""
+        if (float(sun_zenith_deg), float(sun_azimuth_deg)) == self.sun_deg:
+            return
+        mi = self.mi
+        self.sun_deg = (float(sun_zenith_deg), float(sun_azimuth_deg))
+        self.sun_irradiance_normal = (1.0 - self.sky_fraction) / math.cos(math.radians(sun_zenith_deg))
+        travel = -direction_from_angles_deg(sun_zenith_deg, sun_azimuth_deg)          # light travels away from the sun
+        up = [0.0, 1.0, 0.0] if abs(travel[2]) > 0.99 else [0.0, 0.0, 1.0]
+        self._scene_params["sun.to_world"] = mi.Transform4f().look_at(origin=[0.0, 0.0, 0.0],
+                                                                     target=travel.tolist(), up=up)
+        self._scene_params.update()
+        self._current = None                                        # set_bands reloads the irradiance
 
     def set_bands(self, idx: tuple[int, int, int]) -> None:
         """Load bands ``idx`` (three band indices) into the R, G, B channels of all materials and lights."""
