@@ -46,3 +46,28 @@ def test_timed_flight_with_irradiance_drift(tmp_path):
         assert abs(ratio - 1.0) < 0.02, (i, ratio, scales[i])
         raw = np.median(obs[truth > 0.05] * scales[i] / truth[truth > 0.05])
         assert abs(raw - scales[i]) < 0.02
+
+
+def test_distorted_camera_is_undistorted_back_to_the_pinhole_view(tmp_path):
+    """--distortion renders through an OPENCV lens; brfgs's reader resamples the frame back onto the
+    pinhole camera: the resampled ray-cast depth equals the pinhole simulation's depth."""
+    from brfgs.data.undistort import resample_cube
+
+    kw = dict(scene="testsite", size=32, bands=3, views=13, spp=1, n_dark=0)
+    dist = (-0.15, 0.03, 0.002, -0.001)
+    bent = simulate(tmp_path / "bent", SimConfig.tiny(**kw, distortion=dist), progress=False)
+    flat = simulate(tmp_path / "flat", SimConfig.tiny(**kw), progress=False)
+    meta = json.loads((bent / "transforms.json").read_text())
+    assert meta["camera_model"] == "OPENCV" and [meta[k] for k in ("k1", "k2", "p1", "p2")] == list(dist)
+    sc = read_scene(bent)
+    cam = sc.frames[-1].camera                                          # an oblique view: depth varies across it
+    assert cam is not None and cam.dist == dist
+    name = sc.frames[-1].name
+    d_bent = np.load(bent / "truth" / "depth" / f"{name}.npy")
+    d_flat = np.load(flat / "truth" / "depth" / f"{name}.npy")
+    back = resample_cube(d_bent[..., None], cam, sc.intrinsics)[..., 0]
+    ok = np.isfinite(back) & np.isfinite(d_flat)
+    assert ok.mean() > 0.9
+    assert np.median(np.abs(back[ok] - d_flat[ok])) < 0.02 * np.median(d_flat[ok])
+    assert np.median(np.abs(d_bent[ok] - d_flat[ok])) > 3 * np.median(np.abs(back[ok] - d_flat[ok]))   # it was bent
+    assert sc.load_image(0).shape == (32, 32, 3)

@@ -29,6 +29,9 @@ def register(app: typer.Typer) -> None:
                                        "2024-06-21T07:00:00Z; needs --origin): every view gets its time and the sun "
                                        "of that time (NREL SPA), so the sun moves over the flight."),
         duration: float = typer.Option(0.0, "--duration-min", help="Minutes from the first to the last view."),
+        distortion: str = typer.Option(None, "--distortion", metavar="K1,K2,P1,P2",
+                                       help="OPENCV lens distortion of the camera (e.g. -0.12,0.03,0.001,-0.0005): "
+                                       "images rendered through it, transforms.json camera_model OPENCV."),
         irradiance_drift: float = typer.Option(0.0, "--irradiance-drift", help="Amplitude d of a smooth per-view "
                                                "drift of the downwelling irradiance (factor in [1-d, 1+d], written "
                                                "as each frame's irradiance_scale)."),
@@ -55,6 +58,7 @@ def register(app: typer.Typer) -> None:
                         noise_scale=noise_scale, shot_coeff=shot_coeff, n_dark=n_dark, max_depth=max_depth,
                         sampler=sampler, start_time=start_time, duration_min=duration,
                         irradiance_drift=irradiance_drift,
+                        distortion=None if distortion is None else tuple(parse_floats(distortion, "--distortion", 4)),
                         origin=None if origin is None else tuple(parse_floats(origin, "--origin")))
         path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
         t = simulate.last_timing

@@ -6,7 +6,8 @@ folder of hyperspectral cubes whose file stems are the COLMAP image names' stems
 ``transforms.json`` (conventions.md) in the project folder. The sidecar holds what COLMAP does not
 know: ``wavelengths_nm`` (else read by the scene reader's checks from the cubes), ``fwhm_nm``,
 ``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``,
-and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
+per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azimuth_deg": ...,
+"irradiance_scale": ..., "split": ...}}), and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
 by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
 
@@ -106,6 +107,21 @@ def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: P
         f"pycolmap.estimate_sim3d on {len(pairs)} camera positions"
 
 
+_FRAME_KEYS = ("time", "sun_zenith_deg", "sun_azimuth_deg", "irradiance_scale", "split")
+
+
+def _frame_extras(sidecar: dict, stem: str, where: Path) -> dict:
+    """The sidecar's per-image fields of ``stem`` (checked later by the scene reader)."""
+    per = sidecar.get("frames", {})
+    if not isinstance(per, dict):
+        raise UserError("expected an object {image stem: {time, sun_zenith_deg, ...}}", file=where, field="frames")
+    extra = per.get(stem, {})
+    if not isinstance(extra, dict) or set(extra) - set(_FRAME_KEYS):
+        raise UserError(f"expected an object with keys among {', '.join(_FRAME_KEYS)}", file=where,
+                        field=f"frames.{stem}")
+    return dict(extra)
+
+
 def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path | None, overwrite: bool = False
                   ) -> tuple[Path, dict]:
     """Write ``project/transforms.json`` from a COLMAP model, a cube folder and a sidecar (module
@@ -148,6 +164,7 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
               "colmap_image_id": int(im.image_id)}
         own = _camera_keys(rec.cameras[im.camera_id], sparse)
         fr.update({k: v for k, v in own.items() if top.get(k) != v})
+        fr.update(_frame_extras(sidecar, stem, Path(sidecar_path) if sidecar_path else sparse))
         frames.append(fr)
     meta = {**top, **{k: sidecar[k] for k in _SIDECAR_KEYS if k in sidecar}, "frames": frames,
             "colmap": {"model": str(Path(sparse).resolve()), "enu_from_colmap": how, "scale": s}}

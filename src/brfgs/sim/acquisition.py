@@ -39,6 +39,7 @@ from brfgs.errors import UserError
 from brfgs.sim.config import N_DARK_DEFAULT, SAMPLERS, VALID_VIEWS, SimConfig  # noqa: F401  (re-exported)
 from brfgs.sim.geometry import build_geometry
 from brfgs.sim.materials import MATERIAL_IDS, MATERIAL_NAMES
+from brfgs.sim.distort import render_grid, to_distorted
 from brfgs.sim.render import BandTripletRenderer
 
 # what simulate() writes (and what --overwrite may remove); other files in OUT are left alone
@@ -229,6 +230,7 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
     sun_z, sun_a = cfg.view_suns()                       # the sun may move over the flight
     times = cfg.view_times()
     scales = cfg.irradiance_scales()                     # downwelling irradiance drift
+    grid, maps = (intr, None) if cfg.distortion is None else render_grid(intr, cfg.distortion)
     frames = []
     preview_of: dict[str, np.ndarray] = {}
     timings = []
@@ -251,8 +253,11 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
                     intr.h, intr.w, len(wl))
             continue
         rend.set_sun(float(sun_z[i]), float(sun_a[i]))
-        clean = rend.render_cube(c2w, intr, render_seed(cfg.seed, z, a))
-        depth, mat = rend.raycast(c2w, intr)
+        clean = rend.render_cube(c2w, grid, render_seed(cfg.seed, z, a))
+        depth, mat = rend.raycast(c2w, grid)
+        if maps is not None:                             # an OPENCV lens: the pinhole render resampled
+            clean, depth = to_distorted(clean, maps), to_distorted(depth.astype(np.float32), maps)
+            mat = to_distorted(mat.astype(np.float32), maps, nearest=True).astype(np.int16)
         rng = np.random.default_rng([int(cfg.seed), 7, i])
         obs = observe(clean * np.float32(scales[i]), sigma, float(cfg.shot_coeff), rng)
         write_envi(out / "images" / f"{name}.hdr", obs, wl, fwhm)
@@ -361,7 +366,8 @@ def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> di
     """Content of transforms.json (conventions.md)."""
     intr = cfg.intrinsics()
     return {
-        "camera_model": "PINHOLE",
+        "camera_model": "PINHOLE" if cfg.distortion is None else "OPENCV",
+        **({} if cfg.distortion is None else dict(zip(("k1", "k2", "p1", "p2"), map(float, cfg.distortion)))),
         "fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h,
         "wavelengths_nm": [float(w) for w in cfg.wavelengths_nm()],
         "fwhm_nm": [float(w) for w in cfg.fwhm_array_nm()],

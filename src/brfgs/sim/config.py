@@ -61,6 +61,7 @@ class SimConfig:
     start_time: str | None = None             # UTC time of the first view: the sun moves over the flight (origin)
     duration_min: float = 0.0                 # minutes from the first to the last view (views evenly spaced)
     irradiance_drift: float = 0.0             # per-view downwelling irradiance factor in [1 - d, 1 + d]
+    distortion: tuple[float, ...] | None = None   # OPENCV k1, k2, p1, p2 of the camera (brfgs.sim.distort)
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
@@ -123,6 +124,10 @@ class SimConfig:
             req(self.origin is not None, "a start time needs the origin (where the sun is computed)", "start_time")
             req(0.0 <= float(self.duration_min) <= 600.0, "duration must be 0-600 minutes", "duration_min")
         req(0.0 <= float(self.irradiance_drift) < 0.9, "irradiance drift must be in [0, 0.9)", "irradiance_drift")
+        if self.distortion is not None:
+            d = list(self.distortion)
+            req(len(d) == 4 and all(math.isfinite(float(v)) and abs(float(v)) < 1.0 for v in d),
+                f"distortion must be k1,k2,p1,p2 with |value| < 1, got {d}", "distortion")
 
     def view_times(self) -> list[str] | None:
         """UTC ISO time of every view (acquisition order), or None without a start time."""
@@ -185,6 +190,7 @@ class SimConfig:
         names = {f.name for f in fields(cls)}
         kw = {k: v for k, v in d.items() if k in names}
         kw.setdefault("sampler", "independent")  # scenes written before the sampler option
-        if kw.get("origin") is not None:
-            kw["origin"] = tuple(kw["origin"])
+        for key in ("origin", "distortion"):
+            if kw.get(key) is not None:
+                kw[key] = tuple(kw[key])
         return cls(**kw)
