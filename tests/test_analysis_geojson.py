@@ -83,8 +83,9 @@ def test_crs_must_be_local(tmp_path):
     ok = dict(geom, crs={"type": "name", "properties": {"name": "local-ENU"}})
     assert roi_spec.parse_roi_spec(str(_write(tmp_path / "ok.geojson", ok))).kind == "polygon"
     assert roi_spec.parse_roi_spec(str(_write(tmp_path / "null.geojson", dict(geom, crs=None)))).kind == "polygon"
+    lonlat = dict(geom, crs={"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}})
+    assert roi_spec.parse_roi_spec(str(_write(tmp_path / "ll.geojson", lonlat))).lonlat   # WGS 84 lon/lat
     for crs in ({"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::32650"}},
-                {"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}},
                 {"type": "link", "properties": {"href": "http://example.com/crs/42"}}):
         bad = _write(tmp_path / "bad.geojson", {"type": "Feature", "properties": {}, "geometry": geom, "crs": crs})
         with pytest.raises(UserError, match="local ENU") as e:
@@ -103,7 +104,7 @@ BAD = {
     "nested": ({"type": "FeatureCollection", "features": [{"type": "Feature", "geometry": {"type": "LineString",
                 "coordinates": [[0, 0], [1, 1]]}}]}, "features[0].geometry.type", "Polygon"),
     "epsg": ({"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, 1], [0, 0]]],
-              "crs": {"type": "name", "properties": {"name": "EPSG:4326"}}}, "crs", "local ENU"),
+              "crs": {"type": "name", "properties": {"name": "EPSG:32632"}}}, "crs", "local ENU"),
 }
 
 
@@ -140,4 +141,32 @@ def test_brf_command_gives_the_same_curve_for_geojson_and_text(run_dir, tmp_path
     g = (tmp_path / "g" / "principal_plane.csv").read_text()
     assert g == (tmp_path / "t" / "principal_plane.csv").read_text()
     roi = json.loads((tmp_path / "g" / "roi.json").read_text())
-    assert roi["name"] == "east" and roi["source"] == {"kind": "geojson", "file": str(path), "n_polygons": 1}
+    assert roi["name"] == "east" and roi["source"] == {"kind": "geojson", "file": str(path), "n_polygons": 1,
+                                                       "coordinates": "ENU metres"}
+
+
+def test_lonlat_roi_on_a_georeferenced_model(tmp_path, capsys):
+    """A WGS 84 lon/lat GeoJSON (crs CRS84, or lonlat:PATH without crs) selects the same ground as the
+    same polygon in ENU metres when the scene has an origin; without an origin it is refused."""
+    from brfgs.data.georef import MapFrame, Origin
+
+    origin = {"latitude_deg": 48.1, "longitude_deg": 11.5, "altitude_m": 520.0}
+    bm = carpet_model(half_m=12.0, n_bands=4)
+    bm.scene["origin"] = origin
+    write_model_file(tmp_path / "geo" / "model.safetensors", bm)
+    from brfgs.model import TrainedModel
+
+    tm = TrainedModel.load(tmp_path / "geo")
+    mf = MapFrame(Origin(48.1, 11.5, 520.0), "EPSG:32632")
+    enu = np.array([[2.0, 2.0], [9.0, 2.5], [8.0, 9.0], [3.0, 8.0]])
+    ll = mf.enu_to_lonlat(np.c_[enu, np.full(4, 520.0 - 520.0)])[:, :2]
+    crs84 = {"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}}
+    for spec_text in (str(_write(tmp_path / "a.geojson", dict(_poly(ll.tolist()), crs=crs84))),
+                      "lonlat:" + str(_write(tmp_path / "b.geojson", _poly(ll.tolist())))):
+        roi = roi_spec.resolve_roi(roi_spec.parse_roi_spec(spec_text), tm)
+        np.testing.assert_allclose(roi.polygons[0][0], enu, atol=1e-3)
+    # the same file on a model without an origin: a clear error
+    write_model_file(tmp_path / "plain" / "model.safetensors", carpet_model(half_m=12.0, n_bands=4))
+    assert main(["brf", str(tmp_path / "plain"), "--roi", "lonlat:" + str(tmp_path / "b.geojson"), "-q",
+                 "-o", str(tmp_path / "o")]) == 2
+    assert "georeferenced" in capsys.readouterr().err

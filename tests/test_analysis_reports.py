@@ -92,7 +92,9 @@ def test_products_report_writes_the_rendered_products(run_dir, tmp_path):
     tm = TrainedModel.load(run_dir)
     res = P.render_products(tm, _camera(info["camera"]), backend="cpu")
     mcd43 = ["f_iso", "f_vol", "f_geo", "fit_rmse", "nbar_mcd43", "bsa_mcd43", "wsa_mcd43"]
-    assert sorted(info["files"]) == sorted(["iso", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix"] + mcd43)
+    assert sorted(info["files"]) == sorted(["iso", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix", "dsm"] + mcd43)
+    dsm = info["files"].pop("dsm")                                      # the flat carpet lies at z = 0
+    assert abs(dsm["median_m"]) < 0.05 and dsm["finite_fraction"] > 0.9
     fit = render_mcd43(tm, _camera(info["camera"]), nbar_sun_zenith_deg=tm.sun_zenith_deg,
                        albedo_sun_zenith_deg=tm.sun_zenith_deg, backend="cpu")
     res.update({k: fit[k] for k in mcd43})

@@ -91,6 +91,10 @@ def test_products_are_georeferenced_and_a_ground_point_lands_within_a_pixel(tmp_
         got = np.array(ds.transform @ (c + 0.5, r + 0.5))
         assert np.linalg.norm(got - want) < 0.5 * px, (got, want, px)
         tif_transform = ds.transform
+    with rasterio.open(tmp_path / "p" / "dsm.tif") as ds:                # heights above the ellipsoid
+        assert ds.count == 1 and ds.crs.to_epsg() == 32632 and np.array(ds.transform)[:6] == pytest.approx(
+            np.array(tif_transform)[:6])
+        assert np.nanmedian(ds.read(1)) == pytest.approx(520.0, abs=0.05)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with rasterio.open(tmp_path / "p" / "nbar.img") as ds:         # the ENVI copy: same grid via map info

@@ -20,7 +20,8 @@ import numpy as np
 
 from brfgs.errors import UserError
 
-__all__ = ["points_in_polygon", "points_in_polygons", "ring_area", "GEOJSON_SUFFIXES", "read_geojson_polygons"]
+__all__ = ["points_in_polygon", "points_in_polygons", "ring_area", "GEOJSON_SUFFIXES", "read_geojson_polygons",
+           "is_lonlat_crs"]
 
 
 def points_in_polygon(xy: np.ndarray, polygon_xy: np.ndarray) -> np.ndarray:
@@ -78,8 +79,16 @@ def _is_local_crs(crs) -> bool:
     return any(w in tokens for w in _LOCAL_CRS_WORDS) or "local_cs" in name or "engineering" in tokens
 
 
+def is_lonlat_crs(crs) -> bool:
+    """True for a GeoJSON ``crs`` member naming WGS 84 longitude/latitude (OGC CRS84, EPSG:4326/4979)."""
+    if not isinstance(crs, dict) or crs.get("type") != "name" or not isinstance(crs.get("properties"), dict):
+        return False
+    name = str(crs["properties"].get("name", "")).upper().replace("::", ":")
+    return name.endswith(("CRS84", "EPSG:4326", "EPSG:4979")) or name in ("WGS84", "WGS 84")
+
+
 def _check_crs(obj: dict, path: Path, where: str) -> None:
-    if "crs" in obj and not _is_local_crs(obj["crs"]):
+    if "crs" in obj and not _is_local_crs(obj["crs"]) and not is_lonlat_crs(obj["crs"]):
         raise UserError(f"coordinate reference system {json.dumps(obj['crs'])} is not supported: the scene frame is "
                         "local ENU metres (x east, y north, around the scene centre), so the polygon must be "
                         "given in it; transform the coordinates into that frame and remove the 'crs' member "
@@ -145,9 +154,11 @@ def read_geojson_polygons(path: str | Path) -> tuple[list[list[np.ndarray]], str
     Accepted: a bare Polygon / MultiPolygon / GeometryCollection, a Feature with such a
     geometry, or a FeatureCollection of them (the ROI is the union of all polygons).
     Coordinates are (x, y) in the scene's **local ENU metres** (x east, y north; a third
-    coordinate is ignored) — not longitude/latitude: the scene frame is local, so a ``crs``
-    member must be null or name a local/ENU frame (e.g. ``"local-ENU"``); any other CRS
-    (EPSG codes, OGC:CRS84, ...) is refused. ``name`` is ``properties.name`` of the only
+    coordinate is ignored), unless the top-level ``crs`` names WGS 84 longitude/latitude (OGC
+    CRS84, EPSG:4326) or the ROI is given as ``lonlat:PATH``: then they are (lon, lat) degrees,
+    converted with the scene's origin when the ROI is resolved (:func:`is_lonlat_crs`). A ``crs``
+    member must otherwise be null or name a local/ENU frame (e.g. ``"local-ENU"``); any other CRS
+    is refused. ``name`` is ``properties.name`` of the only
     Feature, if any. Every problem raises UserError naming the file and the JSON field.
     """
     path = Path(path)

@@ -29,7 +29,7 @@ from brfgs.analysis.views import check_zenith_deg, intrinsics_json
 from brfgs.data.cameras import Intrinsics
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
-from brfgs.model import TrainedModel, camera_from_intrinsics
+from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.data import atomic
 
 __all__ = ["ProductsOptions", "products_report", "PRODUCT_NAMES", "write_product_files"]
@@ -102,6 +102,33 @@ def write_product_files(out: Path, tm: TrainedModel, products: dict, description
     return files
 
 
+def dsm_map(tm: TrainedModel, c2w: np.ndarray, intr: Intrinsics, backend: str, min_alpha: float) -> tuple[np.ndarray,
+                                                                                                      str]:
+    """(DSM [H, W] in metres, description): the rendered surface height under each pixel of the nadir
+    map camera (camera height − depth along its vertical axis); ellipsoidal (WGS 84) when the scene
+    has an origin, else relative to the ENU origin. NaN where the opacity is below ``min_alpha``."""
+    rv = render(tm, camera_from_intrinsics(c2w, intr), decode=False, backend=backend)
+    dsm = (float(c2w[2, 3]) - rv.depth).astype(np.float32)
+    dsm[rv.alpha < min_alpha] = np.nan
+    mf = tm.map_frame
+    if mf is not None:
+        return dsm + np.float32(mf.origin.altitude_m), "surface height (m above the WGS 84 ellipsoid) from depth"
+    return dsm, "surface height (m above the scene's ENU origin) from depth"
+
+
+def _write_dsm(out: Path, dsm: np.ndarray, description: str, grid: MapGrid | None) -> dict:
+    """OUT/dsm.hdr (+ dsm.tif with a grid) and dsm.png."""
+    extra = {"description": f"brfgs {description}", "band names": ["height_m"], **(envi_map_info(grid) if grid else {})}
+    hdr = write_envi(out / "dsm.hdr", dsm[..., None], None, extra=extra, ignore_value=float("nan"))
+    png = plots.save_map_png(out / "dsm.png", dsm, description, diverging=False, label="m")
+    if grid is not None:
+        write_geotiff(out / "dsm.tif", dsm[..., None], grid, None, f"brfgs {description}")
+    ok = np.isfinite(dsm)
+    return {"cube": hdr.name, "png": png.name, "description": description,
+            **({"geotiff": "dsm.tif"} if grid is not None else {}),
+            "median_m": float(np.median(dsm[ok])) if ok.any() else None, "finite_fraction": float(ok.mean())}
+
+
 def _rmse_per_band(rmse: np.ndarray, wl: np.ndarray) -> dict:
     """Median and 95th percentile (over the map) of the MCD43 fit's RMSE per band."""
     flat = rmse.reshape(-1, rmse.shape[-1])
@@ -166,6 +193,7 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
         res["settings"]["mcd43"] = fit["settings"]
         res["settings"]["mcd43"]["fit_seconds"] = time.perf_counter() - t1
     files = write_product_files(out, tm, res, _descriptions(nz, az), grid)
+    files["dsm"] = _write_dsm(out, *dsm_map(tm, c2w, intr, opts.backend, opts.min_alpha), grid)
     wl = tm.wavelengths_nm
     info = {"model": tm.source, "scene": tm.scene_name, "settings": res["settings"],
             "camera": {"c2w": c2w.tolist(), "intrinsics": intrinsics_json(intr)},

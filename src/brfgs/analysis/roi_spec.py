@@ -6,8 +6,9 @@
                                           a Polygon or MultiPolygon geometry, a Feature holding one, or a
                                           FeatureCollection / GeometryCollection of them (their union);
                                           coordinates (x, y[, z ignored]) in the scene's local ENU
-                                          metres, NOT longitude/latitude; a ``crs`` member other than a
-                                          local/ENU one is refused
+                                          metres, or WGS 84 lon/lat when its ``crs`` names OGC CRS84 /
+                                          EPSG:4326 (a georeferenced scene: transforms.json ``origin``)
+    lonlat:PATH                           the same file read as RFC 7946 lon/lat (no ``crs`` member)
     box:VIEW:COL0,ROW0,COL1,ROW1          pixel box (inclusive-exclusive) in training view VIEW
     mask:VIEW:PATH                        boolean mask (.npy, or .png: nonzero = in) in view VIEW
     material:NAME                         material NAME of a simulated scene (truth/materials)
@@ -18,14 +19,15 @@ turns the spec into an :class:`brfgs.analysis.roi.ROI` for a model (and, for mat
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from brfgs.analysis.options import parse_floats
-from brfgs.analysis.polygons import GEOJSON_SUFFIXES, read_geojson_polygons
+from brfgs.analysis.polygons import GEOJSON_SUFFIXES, is_lonlat_crs, read_geojson_polygons
 from brfgs.analysis.roi import ROI, PointSetROI, PolygonROI, material_points, roi_from_view_mask
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
@@ -47,6 +49,7 @@ class ROISpec:
     box: tuple[int, int, int, int] | None = None
     mask_path: Path | None = None
     material: str | None = None
+    lonlat: bool = False            # polygon vertices are (lon, lat) degrees (WGS 84), not ENU metres
 
 
 def _looks_like_geojson_path(text: str) -> bool:
@@ -62,14 +65,17 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
     text = str(text).strip()
     kind, _, rest = text.partition(":")
     kind = kind.strip().lower()
-    if kind == "geojson" or (kind not in ("polygon", "box", "mask", "material") and _looks_like_geojson_path(text)):
-        path = Path(rest.strip() if kind == "geojson" else text)
-        if kind == "geojson" and not rest.strip():
-            raise UserError("geojson ROI: expected 'geojson:PATH'", field="--roi")
+    if kind in ("geojson", "lonlat") or (kind not in ("polygon", "box", "mask", "material")
+                                         and _looks_like_geojson_path(text)):
+        path = Path(rest.strip() if kind in ("geojson", "lonlat") else text)
+        if kind in ("geojson", "lonlat") and not rest.strip():
+            raise UserError(f"{kind} ROI: expected '{kind}:PATH'", field="--roi")
         polys, fname = read_geojson_polygons(path)
+        lonlat = kind == "lonlat" or is_lonlat_crs(json.loads(path.read_text()).get("crs"))
         nm = name or fname or path.stem
-        return ROISpec("polygon", nm, polygon_xy_m=polys[0][0], polygons=polys,
-                       source={"kind": "geojson", "file": str(path), "n_polygons": len(polys)})
+        return ROISpec("polygon", nm, polygon_xy_m=polys[0][0], polygons=polys, lonlat=lonlat,
+                       source={"kind": "geojson", "file": str(path), "n_polygons": len(polys),
+                               "coordinates": "lon/lat (WGS 84)" if lonlat else "ENU metres"})
     if kind == "polygon":
         pts = [p for p in rest.split(";") if p.strip()]
         xy = [parse_floats(p, "--roi") for p in pts]
@@ -94,8 +100,8 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
         if not rest.strip():
             raise UserError("material ROI: expected 'material:NAME'", field="--roi")
         return ROISpec("material", name or rest.strip(), material=rest.strip())
-    raise UserError(f"unknown ROI kind {kind!r}; use polygon:, box:, mask:, material: or a GeoJSON file "
-                    "(PATH.geojson)", field="--roi")
+    raise UserError(f"unknown ROI kind {kind!r}; use polygon:, box:, mask:, material:, a GeoJSON file "
+                    "(PATH.geojson) or lonlat:PATH.geojson", field="--roi")
 
 
 def load_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
@@ -148,11 +154,28 @@ def _view_roi(spec: ROISpec, tm: TrainedModel, backend: str) -> PointSetROI:
                                       "mask": str(spec.mask_path) if spec.mask_path else None})
 
 
+def _lonlat_to_enu(spec: ROISpec, tm: TrainedModel) -> ROISpec:
+    """The lon/lat polygon ``spec`` in the scene's ENU metres (its origin, brfgs.data.georef)."""
+    mf = tm.map_frame
+    if mf is None:
+        raise UserError("a lon/lat ROI needs a georeferenced scene (transforms.json 'origin'); give the polygon "
+                        "in ENU metres instead", field="--roi")
+    h = mf.origin.altitude_m
+
+    def conv(ring: np.ndarray) -> np.ndarray:
+        return mf.lonlat_to_enu(np.c_[ring, np.full(len(ring), h)])[:, :2]
+
+    polys = [[conv(r) for r in poly] for poly in spec.polygons]
+    return replace(spec, polygon_xy_m=polys[0][0], polygons=polys, lonlat=False)
+
+
 def resolve_roi(spec: ROISpec, tm: TrainedModel, scene: Scene | None = None, backend: str = "auto") -> ROI:
     """The ROI of ``spec`` for model ``tm``: a polygon (its height from the Gaussians inside), a
     view's box or mask (projected with the rendered depth of that view) or a simulated scene's
     material (``scene`` with its truth/ folder, seen from its near-nadir frames)."""
     if spec.kind == "polygon":
+        if spec.lonlat:
+            spec = _lonlat_to_enu(spec, tm)
         roi = PolygonROI(spec.polygon_xy_m, name=spec.name, polygons=spec.polygons, source=spec.source or {})
         means = tm.gaussians.means.detach().double().numpy()
         _check_polygon_over_model(roi, spec, means)

@@ -37,12 +37,13 @@ def write_envi(path_hdr: str | Path, cube: np.ndarray, wavelengths_nm, fwhm_nm=N
     cube = np.ascontiguousarray(cube, dtype=np.float32)
     if cube.ndim == 2:
         cube = cube[:, :, None]
-    meta = {"wavelength units": "Nanometers",
-            "wavelength": [f"{w:.4f}" for w in np.asarray(wavelengths_nm, float)]}
+    meta = {}
+    if wavelengths_nm is not None:                 # None: a map that is not a spectrum (e.g. heights)
+        meta = {"wavelength units": "Nanometers", "wavelength": [f"{w:.4f}" for w in np.asarray(wavelengths_nm, float)]}
+        if len(meta["wavelength"]) == cube.shape[2]:
+            meta["band names"] = [f"{w:.1f} nm" for w in np.asarray(wavelengths_nm, float)]
     if fwhm_nm is not None:
         meta["fwhm"] = [f"{w:.4f}" for w in np.asarray(fwhm_nm, float)]
-    if len(meta["wavelength"]) == cube.shape[2]:
-        meta["band names"] = [f"{w:.1f} nm" for w in np.asarray(wavelengths_nm, float)]
     if default_bands is not None:
         idx = [int(i) for i in default_bands]
         if any(not 0 <= i < cube.shape[2] for i in idx):
