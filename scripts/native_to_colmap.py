@@ -22,6 +22,7 @@ import numpy as np
 import pycolmap
 import tifffile
 
+from brfgs.data.cube_io import read_block_averaged
 from brfgs.data.scene import read_scene
 
 
@@ -36,13 +37,18 @@ def main() -> None:
     meta = json.loads((a.scene / "transforms.json").read_text())
     (a.project / "images").mkdir(parents=True, exist_ok=False)
     for i, f in enumerate(sc.frames):
-        cube = sc._read(i, sc._sources[i], sc.band_indices, (-np.inf, np.inf))      # as stored (no scale)
+        src = sc._sources[i]                                                         # as stored: no scale, no resampling
+        cube = np.asarray(read_block_averaged(src, sc.band_indices, None, 1, (-np.inf, np.inf), f.name))
         tifffile.imwrite(a.project / "images" / f"{f.name}.tif", np.moveaxis(cube, -1, 0), photometric="minisblack",
                          planarconfig="separate", compression="lzw")
     for sub in ("calibration", "truth"):
         if (a.scene / sub).is_dir():
             shutil.copytree(a.scene / sub, a.project / sub)
     rec = pycolmap.Reconstruction(str(a.sparse))
+    if meta.get("camera_model") == "OPENCV":                  # the lens of the flight, as COLMAP would model it
+        cam = pycolmap.Camera.create_from_model_name(1, "OPENCV", float(meta["fl_x"]), int(meta["w"]), int(meta["h"]))
+        cam.params = np.array([meta[k] for k in ("fl_x", "fl_y", "cx", "cy", "k1", "k2", "p1", "p2")], float)
+        rec.cameras[1] = cam
     rng = np.random.default_rng(a.seed)
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
