@@ -39,6 +39,13 @@ def test_timed_flight_with_irradiance_drift(tmp_path):
     zen = np.array([f.sun_zenith_deg for f in sc.frames])
     assert zen[0] - zen[-1] > 5.0                                      # the sun climbs ~6° in 40 morning minutes
     np.testing.assert_allclose(zen, SimConfig.from_json(cfg.to_json()).view_suns()[0])
+    # brfgs inspect's summary shows the flight
+    from brfgs.data.summary import format_summary, summarize
+
+    summ = summarize(sc, progress=False)
+    assert summ.flight["sun_zenith_range_deg"] == [zen.min(), zen.max()] and summ.flight["origin"]["latitude_deg"] == 48.1
+    text = format_summary(summ)
+    assert "frame suns" in text and "irradiance scale" in text and "origin" in text
     # the reader divides each frame by its irradiance scale: observed / scale ≈ the clean truth
     for i in (2, 9):
         obs, truth = sc.load_image(i), sc.load_truth(i)

@@ -42,6 +42,7 @@ class SceneSummary:
     snr: list[float] = field(default_factory=list)
     invalid_pixels: dict[str, int] = field(default_factory=dict)
     rings: dict[str, list[int]] = field(default_factory=dict)  # view ring -> [n train, n test]
+    flight: dict = field(default_factory=dict)  # per-frame suns, times, irradiance scales, cameras, georeference
 
     def to_json(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
@@ -80,7 +81,21 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
-        invalid_pixels=dict(scene.invalid_counts), rings=_ring_counts(scene))
+        invalid_pixels=dict(scene.invalid_counts), rings=_ring_counts(scene), flight=_flight(scene))
+
+
+def _flight(scene: Scene) -> dict:
+    """What a real flight adds: the frames' sun range and times, irradiance scales, own cameras, origin."""
+    z = [f.sun_zenith_deg for f in scene.frames]
+    a = [f.sun_azimuth_deg for f in scene.frames]
+    times = sorted(f.time_utc for f in scene.frames if f.time_utc)
+    scales = [f.irradiance_scale for f in scene.frames]
+    own = [f.camera for f in scene.frames if f.camera is not None]
+    return {"sun_zenith_range_deg": [float(min(z)), float(max(z))], "sun_azimuth_range_deg": [float(min(a)), float(max(a))],
+            "time_range_utc": [times[0], times[-1]] if times else None,
+            "irradiance_scale_range": [float(min(scales)), float(max(scales))],
+            "frames_resampled": len(own), "distorted": sum(any(c.dist) for c in own),
+            "origin": scene.origin.to_json() if scene.origin else None, "crs": scene.crs}
 
 
 def _ring_counts(scene: Scene) -> dict[str, list[int]]:
@@ -91,6 +106,28 @@ def _ring_counts(scene: Scene) -> dict[str, list[int]]:
         c = out.setdefault(rings[f.name], [0, 0])
         c[f.split == "test"] += 1
     return dict(sorted(out.items(), key=lambda kv: float(kv[0])))
+
+
+def _flight_lines(fl: dict) -> list[str]:
+    """Lines of the summary for a flight's moving sun, drift, cameras and georeference (if any)."""
+    out = []
+    if fl and fl["sun_zenith_range_deg"][1] - fl["sun_zenith_range_deg"][0] + fl["sun_azimuth_range_deg"][1] \
+            - fl["sun_azimuth_range_deg"][0] > 1e-6:
+        t = fl["time_range_utc"]
+        out.append(f"frame suns       zenith {fl['sun_zenith_range_deg'][0]:.1f}-{fl['sun_zenith_range_deg'][1]:.1f} "
+                   f"deg, azimuth {fl['sun_azimuth_range_deg'][0]:.1f}-{fl['sun_azimuth_range_deg'][1]:.1f} deg"
+                   + (f" ({t[0]} to {t[1]})" if t else "") + "; the line above is the reference sun")
+    if fl and fl["irradiance_scale_range"] != [1.0, 1.0]:
+        out.append(f"irradiance scale {fl['irradiance_scale_range'][0]:.3f}-{fl['irradiance_scale_range'][1]:.3f} "
+                   "(each frame divided by its own)")
+    if fl and fl["frames_resampled"]:
+        out.append(f"cameras          {fl['frames_resampled']} frame(s) with their own camera ({fl['distorted']} "
+                   "distorted), resampled onto the pinhole camera on reading")
+    if fl and fl["origin"]:
+        o = fl["origin"]
+        out.append(f"origin           {o['latitude_deg']:.6f}, {o['longitude_deg']:.6f}, {o['altitude_m']:.1f} m "
+                   f"(WGS 84); map CRS {fl['crs'] or 'UTM zone of the origin'}")
+    return out
 
 
 def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
@@ -108,6 +145,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
         f"(nearest view to hotspot {s.nearest_hotspot_deg:.1f} deg, to specular {s.nearest_specular_deg:.1f} deg)",
         f"noise sigma      from {s.sigma_source}",
     ]
+    lines += _flight_lines(s.flight)
     n_bad = sum(s.invalid_pixels.values())
     bad_frames = {k: v for k, v in s.invalid_pixels.items() if v}
     lines.append(f"NaN/Inf pixels   {n_bad} in {len(bad_frames)} frame(s)"
