@@ -101,3 +101,28 @@ def test_training_uses_each_frames_sun(tmp_path):
     assert not other.config["frame_suns"] and tm.config["frame_suns"]
     za, zb = tm.gaussians.params["z_vol"], other.gaussians.params["z_vol"]
     assert za.shape == zb.shape and not np.allclose(za.detach().numpy(), zb.detach().numpy())
+
+
+def test_learned_irradiance_scale_finds_the_brighter_frame(tmp_path):
+    """--learn-irradiance: a training frame recorded under 25 % more light (no irradiance_scale given)
+    gets the largest learned scale, above 1; the scales are reported per frame in run.json."""
+    import spectral.io.envi as envi
+
+    from brfgs.cli import main
+    from brfgs.data.cube_io import write_envi
+    from test_train_scene import make_plane_scene
+
+    root = make_plane_scene(tmp_path / "plane")
+    meta = json.loads((root / "transforms.json").read_text())
+    hdr = root / meta["frames"][4]["file_path"]
+    img = np.asarray(envi.open(str(hdr), str(hdr.with_suffix(".img"))).load(), np.float32)
+    write_envi(hdr, img * 1.25, meta["wavelengths_nm"])
+    args = ["--preset", "tiny", "--stage1-steps", "30", "--stage2-steps", "80", "--threads", "1", "--quiet",
+            "--no-evaluate", "--learn-irradiance", "--lr-irradiance", "0.05"]
+    assert main(["train", str(root), str(tmp_path / "run"), *args]) == 0
+    scales = json.loads((tmp_path / "run" / "run.json").read_text())["learned_irradiance_scale"]
+    name = hdr.stem
+    assert name in scales and max(scales, key=scales.get) == name and scales[name] > 1.05
+    # without the option nothing is learned or reported
+    assert main(["train", str(root), str(tmp_path / "plain"), *args[:-3]]) == 0
+    assert json.loads((tmp_path / "plain" / "run.json").read_text())["learned_irradiance_scale"] is None

@@ -132,6 +132,12 @@ class TrainConfig:
                             "--validation/--no-validation")
     decode: str = _opt("pixel", "Spectral decoding order: pixel (alpha-blend latents, decode each pixel) or gaussian "
                        "(paper eq. 13 as published: decode each Gaussian's latent for the view, blend spectra).")
+    learn_irradiance: bool = _opt(False, "Learn a per-frame irradiance scale (frames without a known irradiance_scale: "
+                                  "clouds, no downwelling sensor) that multiplies the predicted spectra of that "
+                                  "training view, with a prior toward 1; reported in run.json.",
+                                  "--learn-irradiance/--no-learn-irradiance")
+    lambda_irradiance: float = _opt(0.1, "Weight of the prior (log scale)^2 of the learned per-frame irradiance scales.")
+    lr_irradiance: float = _opt(5e-3, "Learning rate of the learned per-frame log irradiance scales.")
     frame_suns: bool = _opt(True, "Evaluate every training view's kernels under its own sun (frames' sun_zenith_deg/"
                             "sun_azimuth_deg or time, brfgs.data.sun); --no-frame-suns: the scene's one sun for all.",
                             "--frame-suns/--no-frame-suns")

@@ -37,6 +37,7 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
         lrs["rho_raw"] = c.lr_rho
         lrs["normals"] = c.lr_normals
         lrs["bg_latent"] = c.lr_background
+        lrs["log_irradiance"] = c.lr_irradiance
         for k in neural_names:
             lrs["neural." + k] = c.lr_neural
         if c.finetune_decoder:

@@ -114,6 +114,8 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
         base = backprojected_targets(gm, images("full"), cams, scene.train_indices, encode=state.decoder.encode,
                                      backend=cfg.backend, antialiased=cfg.antialias)
         state.extra["bg_latent"] = base.mean(0).detach()
+        if cfg.learn_irradiance:        # log of each frame's irradiance scale, learned in the spectral phases
+            state.extra["log_irradiance"] = torch.zeros(len(state.cameras))
         if cfg.variant == "neural":
             params = {"feat": base}
             torch.manual_seed(cfg.seed)

@@ -139,16 +139,31 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
     if phase == Phase.STAGE2 and 0 < c.stage2_rays < h * w:
         # ray sampling: decode and score a random subset of the rendered pixels
         idx = torch.randperm(h * w, generator=state.gen)[: c.stage2_rays]
-        pred = state.decoder.decode(lat.reshape(h * w, -1)[idx])  # [R, B]
+        pred = state.decoder.decode(lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
+        greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
     return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
+
+
+def _frame_gain(state: TrainState, i: int) -> Tensor | float:
+    """The learned irradiance scale of training frame ``i`` (exp of its log), or 1 (option off)."""
+    log_s = state.extra.get("log_irradiance")
+    return 1.0 if log_s is None else torch.exp(log_s[i])
+
+
+def _plus_irradiance_prior(state: TrainState, cfg: TrainConfig, i: int, greg: Tensor | None) -> Tensor | None:
+    """``greg`` plus λ (log s_i)², the prior toward 1 of the learned irradiance scale of frame ``i``."""
+    log_s = state.extra.get("log_irradiance")
+    return greg if log_s is None else _plus(cfg.lambda_irradiance * log_s[i] ** 2, greg)
 
 
 def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tensor, batch: Batch,
                    greg: Tensor | None) -> tuple[Tensor, float]:
     """Loss of the reflectance image ``pred`` [H, W, B] (eqs. 25–27, + D-SSIM on the stage-1 bands
     when joint) and its PSNR."""
+    pred = pred * _frame_gain(state, batch.index)
+    greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
     loss = stage2_loss(pred, batch.target, batch.valid, cfg.beta_cos)
     if phase == Phase.JOINT and cfg.alpha_dssim > 0:
         sel = state.stage1_bands()

@@ -173,7 +173,16 @@ class Trainer:
                                   "config": self.cfg.to_dict(), "scene": str(self.scene_path.resolve()),
                                   "timings_s": st.timings,
                                   "n_gaussians": st.gaussians.n if st.gaussians is not None else None,
+                                  "learned_irradiance_scale": self._learned_scales(),
                                   "model": self.folder.model.name if status == "finished" else None})
+
+    def _learned_scales(self) -> dict | None:
+        """{training frame: learned irradiance scale} (option learn_irradiance), else None."""
+        log_s = self.state.extra.get("log_irradiance")
+        if log_s is None:
+            return None
+        names = [f["name"] for f in self.state.meta["scene"]["frames"]]
+        return {names[i]: round(float(log_s[i].detach().exp()), 5) for i in self.scene.train_indices}
 
     # -------------------------------------------------------------------------------- a phase
     def _run_phase(self, phase: Phase, steps: int) -> None:
