@@ -90,30 +90,84 @@ def test_import_colmap_opencv_cameras_and_bad_input(tmp_path, capsys):
     assert main(["import", "colmap", str(tmp_path / "nowhere")]) == 2
 
 
+_FLIGHT = ["--size", "32", "--bands", "16", "--views", "13", "--spp", "4", "--dark-frames", "2", "--origin",
+           "48.1,11.5,520", "--start-time", "2024-06-21T07:00:00Z", "--duration-min", "30", "--irradiance-drift", "0.1",
+           "--distortion=-0.12,0.03,0.001,-0.0005", "--quiet"]
+
+
 def test_a_simulated_flight_round_trips_through_colmap(tmp_path):
-    """A timed, drifting simulated flight → brfgs init (sparse/0) → scripts/native_to_colmap.py (LZW TIFFs, the
-    model in a random frame, a sidecar) → brfgs import colmap: the same scene (poses, images, suns, split)."""
-    import subprocess
-    import sys
-    from pathlib import Path
+    """`brfgs simulate --layout colmap` (a timed, drifting flight through an OPENCV lens: LZW TIFFs, the model in
+    a random frame, a sidecar) → brfgs import colmap: the same scene as the native layout of the same flight
+    (poses, lens, images, truth, suns, irradiance, split)."""
+    import tifffile
 
-    from brfgs.sim import SimConfig, simulate
-
-    scene = simulate(tmp_path / "scene", SimConfig.small(views=13, spp=4, origin=(48.1, 11.5, 520.0),
-                                                         start_time="2024-06-21T07:00:00Z", duration_min=30,
-                                                         irradiance_drift=0.1), progress=False)
-    assert main(["init", str(scene), str(tmp_path / "init"), "--poses", "known"]) == 0
-    script = Path(__file__).resolve().parents[1] / "scripts" / "native_to_colmap.py"
-    res = subprocess.run([sys.executable, str(script), str(scene), str(tmp_path / "init" / "sparse" / "0"),
-                          str(tmp_path / "proj")], capture_output=True, text=True, timeout=600)
-    assert res.returncode == 0, res.stderr
+    assert main(["simulate", str(tmp_path / "scene"), *_FLIGHT]) == 0
+    assert main(["simulate", str(tmp_path / "proj"), "--layout", "colmap", *_FLIGHT]) == 0
+    assert sorted(p.name for p in (tmp_path / "proj").iterdir()) == ["calibration", "images", "sparse",
+                                                                      "spectral.json", "truth"]
+    with tifffile.TiffFile(tmp_path / "proj" / "images" / "v00_z00_a000.tif") as t:
+        assert t.pages[0].compression == tifffile.COMPRESSION.LZW
     assert main(["import", "colmap", str(tmp_path / "proj")]) == 0
-    a, b = read_scene(scene), read_scene(tmp_path / "proj")
+    a, b = read_scene(tmp_path / "scene"), read_scene(tmp_path / "proj")
     assert [f.name for f in a.frames] == [f.name for f in b.frames] and a.split_record() == b.split_record()
     for x, y in zip(a.frames, b.frames):
         np.testing.assert_allclose(y.c2w, x.c2w, atol=1e-6)
+        assert y.camera == x.camera and y.camera.dist == pytest.approx((-0.12, 0.03, 0.001, -0.0005))
         assert (y.sun_zenith_deg, y.sun_azimuth_deg, y.irradiance_scale) == pytest.approx(
             (x.sun_zenith_deg, x.sun_azimuth_deg, x.irradiance_scale))
     np.testing.assert_array_equal(b.load_image(5), a.load_image(5))
     np.testing.assert_array_equal(b.load_truth(5), a.load_truth(5))
     assert (b.sun_zenith_deg, b.origin) == (a.sun_zenith_deg, a.origin)
+
+
+def test_the_simulated_colmap_points_lie_on_the_truth_surface(tmp_path):
+    """sparse/0's points (back-projected from the nadir truth depth through the OPENCV lens) project, with
+    pycolmap's own OPENCV camera model, back onto their pixel centres in the nadir image, and onto the truth
+    surface in oblique views (COLMAP depth × the model's scale = truth depth)."""
+    assert main(["simulate", str(tmp_path / "proj"), "--layout", "colmap", *_FLIGHT]) == 0
+    rec = read_colmap_model(tmp_path / "proj" / "sparse" / "0")
+    ims = {im.name: im for im in rec.images.values()}
+    pts = np.array([p.xyz for p in rec.points3D.values()])                     # [P, 3] COLMAP frame
+    assert len(pts) == 64
+
+    def project(name):
+        im = ims[name]
+        pc = np.array([im.cam_from_world() * p for p in pts])                   # [P, 3]
+        return np.array([rec.cameras[im.camera_id].img_from_cam(p) for p in pc]), pc[:, 2]
+
+    uv, z0 = project("v00_z00_a000.tif")
+    np.testing.assert_allclose(uv - 0.5, np.round(uv - 0.5), atol=1e-3)            # pixel centres (+0.5)
+    assert set(np.round(uv - 0.5).astype(int).ravel()) <= set(range(2, 32, 4))
+    d0 = np.load(tmp_path / "proj" / "truth" / "depth" / "v00_z00_a000.npy")
+    scale = d0[np.round(uv[:, 1] - 0.5).astype(int), np.round(uv[:, 0] - 0.5).astype(int)] / z0
+    np.testing.assert_allclose(scale, np.median(scale), rtol=1e-5)               # one similarity for all
+    for name in ("v01_z38_a000.tif", "v05_z38_a120.tif"):
+        uv, z = project(name)
+        ok = (uv >= 0).all(1) & (uv < 32).all(1)
+        d = np.load(tmp_path / "proj" / "truth" / "depth" / f"{name[:-4]}.npy")
+        ratio = d[uv[ok, 1].astype(int), uv[ok, 0].astype(int)] / (z[ok] * np.median(scale))
+        assert ok.sum() > 40 and abs(np.median(ratio) - 1) < 0.01
+
+
+def test_simulate_colmap_refuses_a_folder_it_did_not_write(tmp_path, capsys):
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "proj" / "notes.txt").write_text("mine")
+    assert main(["simulate", str(tmp_path / "proj"), "--layout", "colmap", "--overwrite", *_FLIGHT]) == 2
+    assert "does not write" in capsys.readouterr().err and (tmp_path / "proj" / "notes.txt").read_text() == "mine"
+    assert main(["simulate", str(tmp_path / "x"), "--layout", "ply", *_FLIGHT]) == 2
+    assert "--layout" in capsys.readouterr().err
+
+
+def test_simulate_colmap_resumes_a_conversion_cut_short(tmp_path):
+    """A run stopped after the rendering (complete staging, a partial images/) is finished by --resume."""
+    from brfgs.init.colmap_project import PROJECT_ENTRIES
+
+    assert ".native" in PROJECT_ENTRIES
+    assert main(["simulate", str(tmp_path / "proj" / ".native"), *_FLIGHT]) == 0
+    (tmp_path / "proj" / "images").mkdir()
+    (tmp_path / "proj" / "images" / "v00_z00_a000.tif").write_bytes(b"partial")
+    assert main(["simulate", str(tmp_path / "proj"), "--layout", "colmap", *_FLIGHT]) == 2      # not without --resume
+    assert main(["simulate", str(tmp_path / "proj"), "--layout", "colmap", "--resume", *_FLIGHT]) == 0
+    assert not (tmp_path / "proj" / ".native").exists()
+    assert main(["import", "colmap", str(tmp_path / "proj")]) == 0
+    assert len(read_scene(tmp_path / "proj").frames) == 13

@@ -45,6 +45,9 @@ def register(app: typer.Typer) -> None:
         shot_coeff: float = typer.Option(0.01, "--shot-coeff", help="Signal-dependent noise k (var = k^2 rho)."),
         n_dark: int = typer.Option(20, "--dark-frames", help="Number of dark frames in calibration/."),
         max_depth: int = typer.Option(10, "--max-depth", help="Longest light path (bounces)."),
+        layout: str = typer.Option("native", "--layout", help="native: transforms.json + ENVI cubes; colmap: "
+                                   "a COLMAP project as a user brings it (images/*.tif LZW cubes, sparse/0 in an "
+                                   "arbitrary frame, spectral.json sidecar; then `brfgs import colmap OUT`)."),
         overwrite: bool = typer.Option(False, "--overwrite", help="Replace a simulation already in OUT."),
         resume: bool = typer.Option(False, "--resume", help="Continue an interrupted simulation in OUT."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -60,8 +63,32 @@ def register(app: typer.Typer) -> None:
                         irradiance_drift=irradiance_drift,
                         distortion=None if distortion is None else tuple(parse_floats(distortion, "--distortion", 4)),
                         origin=None if origin is None else tuple(parse_floats(origin, "--origin")))
-        path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
-        t = simulate.last_timing
+        if layout not in ("native", "colmap"):
+            from brfgs.errors import UserError
+            raise UserError(f"expected native or colmap, got {layout!r}", field="--layout")
+        if layout == "native":
+            path = simulate(out, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
+        else:
+            path = _simulate_colmap(out, cfg, overwrite, resume, quiet)
+        t = getattr(simulate, "last_timing", {"setup_s": 0.0, "view_s": [], "total_s": 0.0})
         per_view = sorted(t["view_s"])[len(t["view_s"]) // 2] if t["view_s"] else float("nan")
         typer.echo(f"wrote {path} ({cfg.views} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp} {cfg.sampler}); "
                    f"setup {t['setup_s']:.1f} s, median {per_view:.2f} s per view, total {t['total_s']:.1f} s")
+
+
+def _simulate_colmap(out: Path, cfg, overwrite: bool, resume: bool, quiet: bool) -> Path:
+    """Simulate into OUT/.native (resumable), then write OUT as a COLMAP project and drop the staging."""
+    import shutil
+
+    from brfgs.init.colmap_project import prepare_project_dir, write_colmap_project
+    from brfgs.sim import simulate
+
+    prepare_project_dir(out, overwrite, resume)
+    staging = out / ".native"
+    if not (resume and (staging / "transforms.json").is_file()):     # else only the conversion was cut short
+        simulate(staging, cfg, overwrite=overwrite, progress=not quiet, resume=resume)
+    info = write_colmap_project(staging, out, seed=cfg.seed, move_extras=True)
+    shutil.rmtree(staging)
+    typer.echo(f"wrote the COLMAP project {out}: {info['images']} LZW TIFF cubes, sparse/0 ({info['cameras']} "
+               f"camera(s), {info['points']} points, arbitrary frame), spectral.json; next: brfgs import colmap {out}")
+    return out
