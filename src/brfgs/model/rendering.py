@@ -28,6 +28,7 @@ from torch import Tensor
 
 from brfgs.brdf.geometry import gaussian_normals, view_directions
 from brfgs.data.cir import cir_composite
+from brfgs.spectral.fast_decode import can_fast_decode, fast_decode
 from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
 from brfgs.render import RenderOutput, rasterize
@@ -83,10 +84,14 @@ def composite_background(
 
 
 def decode_image(decoder, latent: Tensor, chunk: int = 1 << 16) -> Tensor:
-    """Decode latent vectors [..., d] to reflectance [..., B] pixel by pixel (eq. 13), in chunks
-    of ``chunk`` vectors (the decoder is per pixel: chunking does not change the result)."""
+    """Decode latent vectors [..., d] to reflectance [..., B] pixel by pixel (eq. 13): through
+    :func:`brfgs.spectral.fast_decode.fast_decode` when the decoder's weights need no gradient (a frozen or
+    loaded decoder), else through ``decoder.decode`` (the reference) in chunks of ``chunk`` vectors (the
+    decoder is per pixel: chunking does not change the result)."""
     shape, d = latent.shape[:-1], latent.shape[-1]
     flat = latent.reshape(-1, d)
+    if can_fast_decode(decoder, flat):                   # the fused kernels (same map, gradient to the latent)
+        return fast_decode(decoder, flat).reshape(*shape, -1)
     if flat.shape[0] <= chunk:
         return decoder.decode(flat).reshape(*shape, -1)
     parts = [decoder.decode(flat[i : i + chunk]) for i in range(0, flat.shape[0], chunk)]

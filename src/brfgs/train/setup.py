@@ -91,6 +91,7 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
     acfg = AutoencoderConfig(latent_dim=cfg.latent_dim, steps=cfg.ae_steps, batch_size=cfg.ae_batch,
                              max_pixels=cfg.ae_max_pixels, seed=cfg.seed)
     state.decoder, hist = train_autoencoder(pix, acfg, progress=progress)
+    state.decoder.requires_grad_(cfg.finetune_decoder)      # frozen: decoding takes the fused kernels
     report = {"config": acfg.__dict__, "loss_first": hist[0] if hist else None, "loss_last": hist[-1] if hist else None,
               "train": evaluate_autoencoder(state.decoder, pix)}
     if scene.test_indices:

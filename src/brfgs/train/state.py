@@ -129,6 +129,8 @@ class TrainState:
         self.gaussians = tm.gaussians
         self.extra = {k: v.clone().requires_grad_(True) for k, v in tm.extra.items()}
         self.decoder = tm.decoder
+        if self.decoder is not None:
+            self.decoder.requires_grad_(self.cfg.finetune_decoder)
         self.neural = tm.neural
         self.timings = dict(meta.get("timings_s", {}))
         self._cameras = None

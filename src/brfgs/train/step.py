@@ -139,7 +139,7 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
     if phase == Phase.STAGE2 and 0 < c.stage2_rays < h * w:
         # ray sampling: decode and score a random subset of the rendered pixels
         idx = torch.randperm(h * w, generator=state.gen)[: c.stage2_rays]
-        pred = state.decoder.decode(lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
+        pred = decode_image(state.decoder, lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
