@@ -108,3 +108,21 @@ def test_the_plan_follows_weight_updates():
     with torch.no_grad():
         m.dec_lin.bias.add_(1.0)                            # an in-place update (as an optimiser step)
     np.testing.assert_allclose(fast_decode(m, z).numpy(), before.numpy() + m.band_std.numpy(), atol=1e-5)
+
+
+def test_bench_view_times_both_decoders_in_one_run(tmp_path):
+    """`brfgs bench view` (correctness of what it reports, not speed): both decoders timed, the same cube."""
+    import json
+
+    from brfgs.cli import main
+
+    out = tmp_path / "view.json"
+    assert main(["bench", "view", "--gaussians", "400", "--size", "16", "--size", "24", "--repeats", "1",
+                 "--threads", "1", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert [v["size"] for v in res["views"]] == [[16, 16], [24, 24]] and res["bands"] == 164
+    for v in res["views"]:
+        assert v["fused"]["median_s"] > 0 and v["reference"]["median_s"] > 0
+        assert v["max_abs_diff_vs_reference"] < 1e-5
+        assert v["speedup_vs_reference"] == v["reference"]["median_s"] / v["fused"]["median_s"]
+    assert main(["bench", "view", "--json", str(tmp_path)]) == 2

@@ -10,9 +10,11 @@ kernels on first use).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import platform
+import resource
 import statistics
 import time
 from pathlib import Path
@@ -31,8 +33,9 @@ from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.model.gaussians import GaussianModel
 from brfgs.spectral.autoencoder import SpectralAutoencoder
+from brfgs.spectral.fast_decode import reference_decoding
 
-__all__ = ["synthetic_model", "bench_analysis"]
+__all__ = ["synthetic_model", "bench_analysis", "bench_view"]
 
 
 def _synthetic_gaussians(n_gaussians: int, latent_dim: int, seed: int) -> tuple[GaussianModel, HeadConfig]:
@@ -158,3 +161,66 @@ def bench_analysis(
                       "per_direction_ms": 1000 * statistics.median(pts) / (polar_azimuths * polar_zeniths),
                       "torch_threads_in_loop": loop_threads},
     }
+
+
+def _peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _view_rounds(tm: TrainedModel, cam, repeats: int, backend: str) -> dict:
+    """Alternating rounds of the view with the fused decoder and with the reference decoder (the same
+    load for both); medians of wall time and of the render's own split, and their largest difference."""
+    def view():
+        return render(tm, cam, normals=True, backend=backend)
+
+    fused, ref = view(), None
+    with reference_decoding():
+        ref = view()                                              # warm-ups, and the two results compared
+    times = {"fused": [], "reference": []}
+    split = {"fused": [], "reference": []}
+    for _ in range(repeats):
+        for name in ("fused", "reference"):
+            with reference_decoding() if name == "reference" else contextlib.nullcontext():
+                t0 = time.perf_counter()
+                rv = view()
+                times[name].append(time.perf_counter() - t0)
+                split[name].append(rv.timings_s)
+    out = {name: {"median_s": statistics.median(t), "all_s": t,
+                  "median_rasterize_s": statistics.median(x["rasterize_s"] for x in split[name]),
+                  "median_decode_s": statistics.median(x["decode_s"] for x in split[name])}
+           for name, t in times.items()}
+    out["speedup_vs_reference"] = out["reference"]["median_s"] / out["fused"]["median_s"]
+    out["decode_speedup_vs_reference"] = out["reference"]["median_decode_s"] / out["fused"]["median_decode_s"]
+    out["max_abs_diff_vs_reference"] = float(np.abs(fused.cube - ref.cube).max()) if fused.cube is not None else None
+    return out
+
+
+def _simulator_view_s(size: int, n_bands: int) -> float:
+    """Wall seconds of the project's Mitsuba simulator rendering one view of the testsite at ``size``² and
+    ``n_bands`` bands (its default 64 spp), the ray-traced reference of the paper's speed comparison."""
+    from brfgs.sim import SimConfig, render_views
+
+    t0 = time.perf_counter()
+    render_views(SimConfig(size=size, bands=n_bands), [(37.0, 65.0)])
+    return time.perf_counter() - t0
+
+
+def bench_view(model: str | Path | None = None, *, n_gaussians: int = 50_000, sizes: tuple[int, ...] = (128,),
+               repeats: int = 5, backend: str = "cpu", simulator: bool = False) -> dict:
+    """Time one arbitrary 164-band view (cube, CIR, depth, normals) per size, with the fused decoder and the
+    reference decoder in alternating rounds of the same run; optionally the simulator's time for the same
+    view size and bands. Returns a JSON-ready dict."""
+    tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
+    load_before = os.getloadavg()
+    fov = 2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x))
+    rows = []
+    for size in sizes:
+        c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size, fov_deg=fov)
+        row = {"size": [intr.w, intr.h], **_view_rounds(tm, camera_from_intrinsics(c2w, intr), repeats, backend)}
+        if simulator and tm.spectral:
+            row["simulator_view_s"] = _simulator_view_s(size, len(tm.wavelengths_nm))
+            row["speedup_vs_simulator"] = row["simulator_view_s"] / row["fused"]["median_s"]
+        rows.append(row)
+    return {"machine": _machine(backend, load_before), "model": "synthetic" if model is None else str(model),
+            "n_gaussians": tm.n_gaussians, "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
+            "repeats": repeats, "views": rows, "peak_rss_mib": _peak_rss_mib()}

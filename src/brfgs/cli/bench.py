@@ -141,5 +141,43 @@ def bench_analysis_cmd(
         _write_json(json_path, res)
 
 
+@bench_app.command("view")
+def bench_view_cmd(
+    model: Path = typer.Option(None, "--model", help="Run folder or model file (default: a synthetic model of "
+                               "a 128-px testsite run's size)."),
+    gaussians: int = typer.Option(50_000, "--gaussians", min=100, help="Gaussians of the synthetic model."),
+    sizes: list[int] = typer.Option([128], "--size", min=8, help="Square view size in pixels (repeatable)."),
+    repeats: int = typer.Option(5, "--repeats", min=1, help="Timed rounds per decoder (median reported)."),
+    simulator: bool = typer.Option(False, "--simulator", help="Also time the Mitsuba simulator rendering one "
+                                   "view of the same size and bands (needs the sim extra; minutes at 1024²)."),
+    threads: int = typer.Option(0, "--threads", min=0, help="numba/torch threads (0: all cores)."),
+    json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
+) -> None:
+    """One arbitrary 164-band view per size: the fused decoder against the reference decoder in
+    alternating rounds of one run (ratio, split rasterize/decode, largest difference), optionally the
+    simulator's time for the same view (BENCHMARKS.md)."""
+    from brfgs.analysis.bench import bench_view
+    from brfgs.render import configure_threads
+
+    if json_path is not None and json_path.is_dir():
+        raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
+    configure_threads(threads or None)
+    res = bench_view(model, n_gaussians=gaussians, sizes=tuple(sizes), repeats=repeats, simulator=simulator)
+    la = res["machine"]["load_average_1_5_15_before"]
+    typer.echo(f"model: {res['model']} ({res['n_gaussians']} Gaussians, {res['bands']} bands); threads "
+               f"{res['machine']['numba_threads']}; load average before {la[0]:.1f} on {res['machine']['cpu_count']} cores")
+    for r in res["views"]:
+        f, ref = r["fused"], r["reference"]
+        typer.echo(f"{r['size'][0]}x{r['size'][1]}: fused {f['median_s'] * 1e3:.0f} ms (rasterize "
+                   f"{f['median_rasterize_s'] * 1e3:.0f} + decode {f['median_decode_s'] * 1e3:.0f}), reference "
+                   f"{ref['median_s'] * 1e3:.0f} ms (decode {ref['median_decode_s'] * 1e3:.0f}): x{r['speedup_vs_reference']:.2f} "
+                   f"view, x{r['decode_speedup_vs_reference']:.2f} decode; max |diff| {r['max_abs_diff_vs_reference']:.1e}"
+                   + (f"; simulator {r['simulator_view_s']:.1f} s (x{r['speedup_vs_simulator']:.0f})"
+                      if "simulator_view_s" in r else ""))
+    typer.echo(f"peak RSS {res['peak_rss_mib']:.0f} MiB")
+    if json_path is not None:
+        _write_json(json_path, res)
+
+
 def register(app: typer.Typer) -> None:
     app.add_typer(bench_app, name="bench")

@@ -18,6 +18,7 @@ library call, so it vectorises too. Results equal the reference within float rou
 
 from __future__ import annotations
 
+import contextlib
 import math
 import weakref
 
@@ -28,7 +29,9 @@ from numba import njit, prange
 
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 
-__all__ = ["DecoderPlan", "fast_decode", "can_fast_decode"]
+__all__ = ["DecoderPlan", "fast_decode", "can_fast_decode", "reference_decoding"]
+
+_FUSED = [True]  # switched off by reference_decoding()
 
 _FM = {"nsz", "arcp", "contract", "reassoc"}
 _BLOCK = 64  # pixels per parallel work item (scratch stays in L1/L2)
@@ -268,11 +271,22 @@ def _polyphase(w: torch.Tensor) -> torch.Tensor:
 def can_fast_decode(decoder, z: torch.Tensor) -> bool:
     """True when :func:`fast_decode` computes ``decoder.decode(z)``: a SpectralAutoencoder with the
     standard architecture, on CPU, float32/float64, and no gradient wanted for its weights."""
-    if type(decoder) is not SpectralAutoencoder or z.device.type != "cpu" or z.dtype not in (torch.float32,
+    if not _FUSED[0] or type(decoder) is not SpectralAutoencoder or z.device.type != "cpu" or z.dtype not in (torch.float32,
                                                                                             torch.float64):
         return False
     weights_need_grad = torch.is_grad_enabled() and any(p.requires_grad for p in decoder.parameters())
     return 4 * decoder._L2 >= decoder.n_bands and not weights_need_grad
+
+
+@contextlib.contextmanager
+def reference_decoding():
+    """Within the block, decoding uses the reference ``SpectralAutoencoder.decode`` (``brfgs bench view``
+    times both in one run)."""
+    prev, _FUSED[0] = _FUSED[0], False
+    try:
+        yield
+    finally:
+        _FUSED[0] = prev
 
 
 class _FastDecode(torch.autograd.Function):
