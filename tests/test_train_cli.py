@@ -142,3 +142,17 @@ def test_train_and_ablate_never_write_into_the_scene(scene, tmp_path, capsys):
         err = capsys.readouterr().err
         assert "inside the scene folder" in err and len(err.strip().splitlines()) == 1
     assert snapshot(scene) == before
+
+
+def test_bench_train_times_both_decoders_with_the_same_result(scene, tmp_path, capsys):
+    """`brfgs bench train` (what it reports, not speed): both decoders train the same model to the same
+    scores (float rounding apart), per-phase timings and ratios present."""
+    out = tmp_path / "bench.json"
+    opts = [o for o in TINY if o != "--quiet"]
+    assert main(["bench", "train", str(scene), str(tmp_path / "runs"), *opts, "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert set(res["summary"]) == {"fused", "reference"} and res["repeats"] == 1
+    assert abs(res["psnr_difference_db"]) < 0.01 and abs(res["sam_ratio"] - 1) < 0.01
+    assert res["summary"]["fused"]["ms_per_step"]["stage2"] > 0 and res["speedup_vs_reference"]["stage2"] > 0
+    assert (tmp_path / "runs" / "fused_0" / "model.safetensors").is_file()
+    assert "speed-up vs reference" in capsys.readouterr().out

@@ -1,5 +1,6 @@
 """``brfgs bench``: speed and memory benchmarks (render: the rasterizer; kernels: the BRDF head;
-analysis: an arbitrary view and a polar BRF map)."""
+analysis: an arbitrary view and a polar BRF map; view: one view with the fused and the reference
+decoder; train: a training run with both decoders)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,10 @@ from pathlib import Path
 
 import typer
 
+from brfgs.cli._config import config_command
+from brfgs.cli.train import build_config
 from brfgs.errors import UserError
+from brfgs.train.config import TrainConfig
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
@@ -175,6 +179,35 @@ def bench_view_cmd(
                    + (f"; simulator {r['simulator_view_s']:.1f} s (x{r['speedup_vs_simulator']:.0f})"
                       if "simulator_view_s" in r else ""))
     typer.echo(f"peak RSS {res['peak_rss_mib']:.0f} MiB")
+    if json_path is not None:
+        _write_json(json_path, res)
+
+
+@config_command(bench_app, "train", TrainConfig)
+def bench_train_cmd(
+    scene: Path = typer.Argument(..., help="Scene folder (with truth/ for scores against the clean truth)."),
+    out: Path = typer.Argument(..., help="Folder for the timed runs (fused_<r>, reference_<r>; replaced)."),
+    repeats: int = typer.Option(1, "--repeats", min=1, help="Alternating rounds per decoder (median reported)."),
+    json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
+    options: dict | None = None,
+) -> None:
+    """Train SCENE with the fused spectral decoder and with the reference decoder, alternating in one
+    process (same options and seed; any training option applies), and report seconds per phase and per
+    step, their ratio, and CIR PSNR / SAM of both against truth (BENCHMARKS.md)."""
+    from brfgs.workflows.bench_train import bench_train
+
+    if json_path is not None and json_path.is_dir():
+        raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
+    res = bench_train(scene, out, build_config(options or {}), repeats=repeats)
+    la = res["machine"]["load_average_1_5_15_before"]
+    typer.echo(f"load average before {la[0]:.1f} on {res['machine']['cpu_count']} cores; {repeats} round(s)")
+    for name, s in res["summary"].items():
+        ph = ", ".join(f"{k} {v:.1f} s" for k, v in s["median_phase_s"].items())
+        per = ", ".join(f"{k} {v:.1f} ms/step" for k, v in s["ms_per_step"].items())
+        typer.echo(f"{name:9s}: {ph}; {per}; CIR PSNR {s['psnr'][0]:.3f} dB, SAM {s['sam'][0]:.4f}")
+    sp = ", ".join(f"{k} x{v:.2f}" for k, v in res["speedup_vs_reference"].items())
+    typer.echo(f"speed-up vs reference (same run): {sp}; PSNR difference {res['psnr_difference_db']:+.3f} dB, "
+               f"SAM ratio {res['sam_ratio']:.4f}")
     if json_path is not None:
         _write_json(json_path, res)
 
