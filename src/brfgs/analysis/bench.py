@@ -198,7 +198,7 @@ def _view_rounds(tm: TrainedModel, cam, repeats: int, backend: str) -> dict:
 def _simulator_view_s(size: int, n_bands: int) -> float:
     """Wall seconds of the project's Mitsuba simulator rendering one view of the testsite at ``size``² and
     ``n_bands`` bands (its default 64 spp), the ray-traced reference of the paper's speed comparison."""
-    from brfgs.sim import SimConfig, render_views
+    from brfgs.sim import SimConfig, render_views  # lazy: the simulator loads Mitsuba (optional extra)
 
     t0 = time.perf_counter()
     render_views(SimConfig(size=size, bands=n_bands), [(37.0, 65.0)])

@@ -20,10 +20,12 @@ import time
 from pathlib import Path
 
 import numba
+import numpy as np
 import torch
 
 from brfgs.analysis.evaluate import evaluate_run
-from brfgs.spectral.fast_decode import reference_decoding
+from brfgs.spectral.autoencoder import AutoencoderConfig, train_autoencoder
+from brfgs.spectral.fast_decode import fast_decode, reference_decoding
 from brfgs.train import TrainConfig, train
 
 __all__ = ["bench_train"]
@@ -47,11 +49,6 @@ def _one_run(scene: Path, out: Path, cfg: TrainConfig, reference: bool) -> dict:
 
 def _warm_up() -> None:
     """Load the numba kernels and PyTorch's first-use state before anything is timed."""
-    import numpy as np
-
-    from brfgs.spectral.autoencoder import AutoencoderConfig, train_autoencoder
-    from brfgs.spectral.fast_decode import fast_decode
-
     rng = np.random.default_rng(0)
     ae, _ = train_autoencoder(rng.random((512, 24), dtype=np.float32), AutoencoderConfig(latent_dim=4, steps=5,
                                                                                          batch_size=64))
