@@ -126,3 +126,20 @@ def test_bench_view_times_both_decoders_in_one_run(tmp_path):
         assert v["max_abs_diff_vs_reference"] < 1e-5
         assert v["speedup_vs_reference"] == v["reference"]["median_s"] / v["fused"]["median_s"]
     assert main(["bench", "view", "--json", str(tmp_path)]) == 2
+
+
+def test_latent_gradient_with_and_without_kept_activations(monkeypatch):
+    """The backward reads the forward's pre-activations when it kept them and recomputes them past
+    _SAVE_MAX_PIXELS: the same gradient both ways."""
+    import brfgs.spectral.fast_decode as fd
+
+    m = _decoder(40)
+    z = torch.randn(200, 16)
+    g = torch.randn(200, 40)
+    grads = []
+    for limit in (10**6, 10):
+        monkeypatch.setattr(fd, "_SAVE_MAX_PIXELS", limit)
+        zz = z.clone().requires_grad_(True)
+        (fast_decode(m, zz) * g).sum().backward()
+        grads.append(zz.grad)
+    np.testing.assert_allclose(grads[0].numpy(), grads[1].numpy(), rtol=0, atol=1e-6 * float(grads[0].abs().max()))

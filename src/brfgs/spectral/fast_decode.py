@@ -124,8 +124,9 @@ def _forward_pixel(z, n, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2):
 
 
 @njit(cache=True, parallel=True, fastmath=_FM, nogil=True, error_model="numpy")
-def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out):
-    """out [N, B] = decode(z [N, d]) (module docstring)."""
+def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out, sa1, sa2):
+    """out [N, B] = decode(z [N, d]) (module docstring); when sa1 has rows, the pre-activations are
+    kept for the backward: sa1 [N, c2·L2], sa2 [N, 2, c1, L2] (even, odd)."""
     n_pix, n_bands = out.shape
     c2, c1 = w1.shape[2], w1.shape[3]
     l2 = wfc.shape[1] // c2
@@ -142,6 +143,10 @@ def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out):
         lin = np.empty(n_bands, z.dtype)
         for n in range(blk * _BLOCK, min(n_pix, (blk + 1) * _BLOCK)):
             _forward_pixel(z, n, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
+            if sa1.shape[0] > 0:
+                sa1[n, :] = a1
+                sa2[n, 0] = a2e
+                sa2[n, 1] = a2o
             for j in range(l3):
                 oe[j] = b2
                 oo[j] = b2
@@ -166,8 +171,9 @@ def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out):
 
 
 @njit(cache=True, parallel=True, fastmath=_FM, nogil=True, error_model="numpy")
-def _decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z):
-    """g_z [N, d] = (∂ decode / ∂ z)ᵀ g_out [N, B] (the decoder's weights are constants)."""
+def _decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z, sa1, sa2):
+    """g_z [N, d] = (∂ decode / ∂ z)ᵀ g_out [N, B] (the decoder's weights are constants); the forward's
+    pre-activations are read from sa1/sa2 when it kept them, else recomputed."""
     n_pix, n_bands = g_out.shape
     c2, c1 = w1.shape[2], w1.shape[3]
     m1 = wfc.shape[1]
@@ -184,7 +190,12 @@ def _decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z):
         ge = np.zeros(l3 + 1, z.dtype)
         go = np.zeros(l3 + 1, z.dtype)
         for n in range(blk * _BLOCK, min(n_pix, (blk + 1) * _BLOCK)):
-            _forward_pixel(z, n, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
+            if sa1.shape[0] > 0:
+                a1[:] = sa1[n]
+                a2e[:, :] = sa2[n, 0]
+                a2o[:, :] = sa2[n, 1]
+            else:
+                _forward_pixel(z, n, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
             for y in range(n_bands):
                 g[y] = g_out[n, y] * std[y]
                 if y % 2 == 0:
@@ -289,24 +300,33 @@ def reference_decoding():
         _FUSED[0] = prev
 
 
+_SAVE_MAX_PIXELS = 65536  # keep the pre-activations (5 kB a pixel) for the backward up to this many pixels
+
+
 class _FastDecode(torch.autograd.Function):
     @staticmethod
     def forward(ctx, z, plan):
         zc = z.detach().contiguous()
-        out = torch.empty(zc.shape[0], plan.n_bands, dtype=z.dtype)
+        n, dt = zc.shape[0], zc.dtype
+        out = torch.empty(n, plan.n_bands, dtype=dt)
+        keep = n if z.requires_grad and n <= _SAVE_MAX_PIXELS else 0
+        m1, (c1, l2) = plan.wfc.shape[1], (plan.w1.shape[3], plan.wfc.shape[1] // plan.w1.shape[2])
+        sa1, sa2 = torch.empty(keep, m1, dtype=dt), torch.empty(keep, 2, c1, l2, dtype=dt)
         _sync_threads()
-        _decode_fwd(zc.numpy(), *plan.args(), plan.b2, plan.wlin, plan.blin, plan.std, plan.mean, out.numpy())
-        ctx.save_for_backward(zc)
+        _decode_fwd(zc.numpy(), *plan.args(), plan.b2, plan.wlin, plan.blin, plan.std, plan.mean, out.numpy(),
+                    sa1.numpy(), sa2.numpy())
+        ctx.save_for_backward(zc, sa1, sa2)
         ctx.plan = plan
         return out
 
     @staticmethod
     def backward(ctx, g_out):
-        (zc,) = ctx.saved_tensors
+        zc, sa1, sa2 = ctx.saved_tensors
         plan = ctx.plan
         g_z = torch.empty_like(zc)
         _sync_threads()
-        _decode_bwd(zc.numpy(), g_out.contiguous().numpy(), *plan.args(), plan.wlin, plan.std, g_z.numpy())
+        _decode_bwd(zc.numpy(), g_out.contiguous().numpy(), *plan.args(), plan.wlin, plan.std, g_z.numpy(),
+                    sa1.numpy(), sa2.numpy())
         return g_z, None
 
 
