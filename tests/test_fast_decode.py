@@ -143,3 +143,18 @@ def test_latent_gradient_with_and_without_kept_activations(monkeypatch):
         (fast_decode(m, zz) * g).sum().backward()
         grads.append(zz.grad)
     np.testing.assert_allclose(grads[0].numpy(), grads[1].numpy(), rtol=0, atol=1e-6 * float(grads[0].abs().max()))
+
+
+@pytest.mark.parametrize("n_bands", [164, 50, 16, 7])
+def test_fused_encoder_equals_the_reference(n_bands):
+    from brfgs.spectral.fast_encode import encode_spectra
+
+    m = _decoder(n_bands)
+    r = torch.rand(3, 300, n_bands, generator=torch.Generator().manual_seed(2)) * 0.5
+    ref = m.encode(r)
+    out = encode_spectra(m, r)
+    assert out.shape == ref.shape == (3, 300, 16)
+    np.testing.assert_allclose(out.numpy(), ref.numpy(), rtol=0, atol=2e-6 * float(ref.abs().max()))
+    rg = r.clone().requires_grad_(True)                          # a gradient wanted: the reference, differentiable
+    encode_spectra(m, rg).sum().backward()
+    assert rg.grad is not None and rg.grad.abs().sum() > 0

@@ -17,6 +17,7 @@ from brfgs.init import initialize
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
+from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import plan
@@ -112,7 +113,8 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
         params = init_head_params(head_config(cfg), n, 3, z_init=base)
         state.extra["bg_colors"] = base.mean(0)
     else:
-        base = backprojected_targets(gm, images("full"), cams, scene.train_indices, encode=state.decoder.encode,
+        base = backprojected_targets(gm, images("full"), cams, scene.train_indices,
+                                     encode=lambda img: encode_spectra(state.decoder, img),
                                      backend=cfg.backend, antialiased=cfg.antialias)
         state.extra["bg_latent"] = base.mean(0).detach()
         if cfg.learn_irradiance:        # log of each frame's irradiance scale, learned in the spectral phases
