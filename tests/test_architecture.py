@@ -16,7 +16,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "brfgs"
 LAYERS = [
     {"__main__"},
     {"cli"},
-    {"workflows"},
+    {"workflows", "viewer"},
     {"train", "analysis"},
     {"model"},
     {"render", "brdf", "spectral", "init", "bands", "sim"},

@@ -50,6 +50,7 @@ COMMAND_MODULES = [
     "brfgs.cli.train",       # train / evaluate / ablate
     "brfgs.cli.analysis",    # render / brf / products / export
     "brfgs.cli.bench",       # bench: speed and memory benchmarks
+    "brfgs.cli.view",        # view: the live web viewer (viser)
 ]
 
 

@@ -1,6 +1,6 @@
 """``brfgs bench``: speed and memory benchmarks (render: the rasterizer; kernels: the BRDF head;
 analysis: an arbitrary view and a polar BRF map; view: one view with the fused and the reference
-decoder; train: a training run with both decoders)."""
+decoder; train: a training run with both decoders; viewer: one viewer frame per display mode)."""
 
 from __future__ import annotations
 
@@ -214,3 +214,37 @@ def bench_train_cmd(
 
 def register(app: typer.Typer) -> None:
     app.add_typer(bench_app, name="bench")
+
+
+@bench_app.command("viewer")
+def bench_viewer_cmd(
+    model: Path = typer.Option(None, "--model", help="Run folder or model file (default: a synthetic model)."),
+    gaussians: int = typer.Option(50_000, "--gaussians", min=100, help="Gaussians of the synthetic model."),
+    size: int = typer.Option(256, "--size", min=8, max=4096, help="Square frame size (pixels)."),
+    modes: str = typer.Option("cir,depth,index,kernel:geo", "--modes",
+                              help="Display modes to time, comma-separated (brfgs view's modes)."),
+    repeats: int = typer.Option(7, "--repeats", min=1, help="Timed frames per mode (median reported)."),
+    threads: int = typer.Option(2, "--threads", min=0, help="numba/torch threads (0: all cores)."),
+    backend: str = typer.Option("cpu", "--backend", help="Rasterizer backend: auto | torch | cpu | cuda."),
+    json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
+) -> None:
+    """Time one interaction frame of `brfgs view` (render + colouring, 256² by default) per display mode."""
+    from brfgs.render import configure_threads
+    from brfgs.viewer.bench import bench_viewer
+    from brfgs.viewer.frames import parse_mode
+
+    ms = tuple(m.strip() for m in modes.split(",") if m.strip())
+    for m in ms:
+        parse_mode(m)
+    if json_path is not None and json_path.is_dir():
+        raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
+    configure_threads(threads or None)
+    res = bench_viewer(model, n_gaussians=gaussians, size=size, modes=ms, repeats=repeats, backend=backend)
+    m = res["machine"]
+    typer.echo(f"model: {res['model']} ({res['n_gaussians']} Gaussians, {res['bands']} bands); {size}x{size} px; "
+               f"threads numba {m['numba_threads']}, torch {m['torch_threads']}; load average before "
+               f"{m['load_average_1_5_15_before'][0]:.1f} on {m['cpu_count']} cores")
+    for name, r in res["modes"].items():
+        typer.echo(f"{name:12s} median {r['median_s'] * 1e3:6.1f} ms wall, {r['median_cpu_s'] * 1e3:6.1f} ms CPU")
+    if json_path is not None:
+        _write_json(json_path, res)
