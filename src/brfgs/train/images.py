@@ -34,10 +34,17 @@ class ImageStore:
         cube = self.scene.load_image(i, bands=self.bands)
         if self.transform is not None:
             cube = self.transform(cube)
-        cube = np.asarray(cube, np.float32)
+        cube = np.array(cube, np.float32, copy=None)     # the reader's fresh array: zeroed in place, no copies
         valid = np.isfinite(cube).all(-1)
-        img = torch.from_numpy(np.where(valid[..., None], cube, 0.0).astype(np.float32))
-        return img, torch.from_numpy(valid)
+        cube[~valid] = 0.0
+        return torch.from_numpy(cube), torch.from_numpy(valid)
+
+    def get_with_nan(self, i: int) -> np.ndarray:  # [H, W, C] float32
+        """Frame ``i``'s target with its invalid pixels NaN (one load; a copy only when it is cached)."""
+        img, valid = self.get(i)
+        cube = img.numpy().copy() if i in self.cache else img.numpy()
+        cube[~valid.numpy()] = np.nan
+        return cube
 
     def get(self, i: int) -> tuple[Tensor, Tensor]:
         if i in self.cache:

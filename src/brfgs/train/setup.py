@@ -86,8 +86,7 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
                     progress: bool, log) -> None:
     """Train the spectral autoencoder (eq. 9) on pixels of the training views; report on test pixels."""
     full = images("full")
-    loaders = [(lambda i=i: full.get(i)[0].numpy() * np.where(full.get(i)[1].numpy()[..., None], 1.0, np.nan))
-               for i in scene.train_indices]
+    loaders = [(lambda i=i: full.get_with_nan(i)) for i in scene.train_indices]
     pix = sample_pixels(loaders, cfg.ae_max_pixels, cfg.seed)
     acfg = AutoencoderConfig(latent_dim=cfg.latent_dim, steps=cfg.ae_steps, batch_size=cfg.ae_batch,
                              max_pixels=cfg.ae_max_pixels, seed=cfg.seed)
