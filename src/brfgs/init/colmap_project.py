@@ -33,13 +33,14 @@ from brfgs.data.cube_io import read_block_averaged
 from brfgs.data.scene import read_scene
 from brfgs.data.undistort import FrameCamera, read_frame_camera
 from brfgs.errors import UserError
+from brfgs.init import colmap_io
 
 __all__ = ["write_colmap_project", "pycolmap_camera", "prepare_project_dir", "PROJECT_ENTRIES"]
 
 PROJECT_ENTRIES = ("images", "sparse", "spectral.json", "calibration", "truth", "transforms.json", ".native")
 
-_SIDECAR_KEYS = ("wavelengths_nm", "fwhm_nm", "origin", "crs", "dark_frames", "dark_sigma")
-_FRAME_KEYS = ("time", "sun_zenith_deg", "sun_azimuth_deg", "irradiance_scale", "split")
+# the sidecar keys `brfgs import colmap` reads; the scene sun is added only when frames carry none
+_SIDECAR_KEYS = tuple(k for k in colmap_io._SIDECAR_KEYS if not k.startswith("sun_"))
 
 
 def pycolmap_camera(cam: FrameCamera, camera_id: int):
@@ -169,6 +170,6 @@ def _write_sidecar(project: Path, meta: dict, sc) -> None:
     side = {k: meta[k] for k in _SIDECAR_KEYS if k in meta}
     if not any("time" in fr or "sun_zenith_deg" in fr for fr in meta["frames"]):
         side.update({k: meta[k] for k in ("sun_zenith_deg", "sun_azimuth_deg") if k in meta})
-    side["frames"] = {f.name: {k: fr[k] for k in _FRAME_KEYS if k in fr} for f, fr in zip(sc.frames, meta["frames"])}
+    side["frames"] = {f.name: {k: fr[k] for k in colmap_io._FRAME_KEYS if k in fr} for f, fr in zip(sc.frames, meta["frames"])}
     side["camera_positions_enu"] = {f.name: np.asarray(f.c2w)[:3, 3].tolist() for f in sc.frames}
     (project / "spectral.json").write_text(json.dumps(side, indent=1))

@@ -89,19 +89,25 @@ def _gelu_grad(x):
 
 
 @njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
+def _affine(z, n, w, b, out):
+    """out [M] = b + wᵀ z[n] for w [d, M] (a fully connected layer on pixel n's latent)."""
+    for i in range(out.shape[0]):
+        out[i] = b[i]
+    for k in range(w.shape[0]):
+        zk = z[n, k]
+        for i in range(out.shape[0]):
+            out[i] += w[k, i] * zk
+
+
+@njit(cache=True, inline="always", fastmath=_FM, error_model="numpy")
 def _forward_pixel(z, n, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2):
     """Pre-activations and activations of pixel n, channels first: a1, h1 [c2·L2] (the fully connected
     layer, c·L2 + l as the reference reshapes it), a2e/a2o [c1, L2] (the first transposed convolution's
     even/odd outputs 2j, 2j+1), h2 [c1, 2·L2] (their GELU, interleaved)."""
-    d, m1 = wfc.shape
+    m1 = wfc.shape[1]
     c2, c1 = w1.shape[2], w1.shape[3]
     l2 = m1 // c2
-    for i in range(m1):
-        a1[i] = bfc[i]
-    for k in range(d):
-        zk = z[n, k]
-        for i in range(m1):
-            a1[i] += wfc[k, i] * zk
+    _affine(z, n, wfc, bfc, a1)
     for i in range(m1):
         h1[i] = _gelu(a1[i])
     for co in range(c1):
@@ -131,7 +137,6 @@ def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out, sa1, sa
     c2, c1 = w1.shape[2], w1.shape[3]
     l2 = wfc.shape[1] // c2
     l3 = 2 * l2
-    d = z.shape[1]
     for blk in prange((n_pix + _BLOCK - 1) // _BLOCK):
         a1 = np.empty(wfc.shape[1], z.dtype)
         h1 = np.empty(wfc.shape[1], z.dtype)
@@ -159,12 +164,7 @@ def _decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out, sa1, sa
                     oe[j] += we0 * h2[ci, j - 1]
                 for j in range(l3 - 1):
                     oo[j] += wo1 * h2[ci, j + 1]
-            for y in range(n_bands):
-                lin[y] = blin[y]
-            for k in range(d):
-                zk = z[n, k]
-                for y in range(n_bands):
-                    lin[y] += wlin[k, y] * zk
+            _affine(z, n, wlin, blin, lin)
             for y in range(n_bands):
                 h = oe[y // 2] if y % 2 == 0 else oo[y // 2]
                 out[n, y] = (lin[y] + h) * std[y] + mean[y]

@@ -4,15 +4,11 @@ from __future__ import annotations
 
 import math
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
-import numba
-import torch
-
-from brfgs.analysis.bench import synthetic_model
+from brfgs.analysis.bench import _machine, synthetic_model
 from brfgs.analysis.views import view_camera
 from brfgs.model import TrainedModel
 from brfgs.viewer.frames import parse_mode, render_frame
@@ -41,9 +37,6 @@ def bench_viewer(model: str | Path | None = None, *, n_gaussians: int = 50_000, 
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         rows[text] = {"median_s": statistics.median(wall), "all_s": wall, "median_cpu_s": statistics.median(cpu)}
-    return {"machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(),
-                        "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(),
-                        "backend": backend, "load_average_1_5_15_before": list(load_before),
-                        "load_average_1_5_15_after": list(os.getloadavg())},
+    return {"machine": _machine(backend, load_before),
             "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
             "bands": len(tm.wavelengths_nm), "size": [intr.w, intr.h], "repeats": repeats, "modes": rows}
