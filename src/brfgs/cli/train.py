@@ -39,6 +39,25 @@ def _echo(quiet: bool):
     return (lambda *a: None) if quiet else typer.echo
 
 
+def _train_as_rank(scene: Path, out: Path, cfg, overwrite: bool, from_stage1, quiet: bool) -> bool:
+    """Train as one rank of torchrun's process group; True on rank 0. A user error is printed by
+    rank 0 only (the other ranks exit with status 2 silently)."""
+    from brfgs.train.distributed import init_from_env, shutdown
+    from brfgs.train.trainer import train
+
+    comm = init_from_env(cfg.backend)
+    try:
+        train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1,
+              log=_echo(quiet), comm=comm)
+    except UserError:
+        if comm.is_main:
+            raise
+        raise SystemExit(2) from None
+    finally:
+        shutdown()
+    return comm.is_main
+
+
 def register(app: typer.Typer) -> None:
     @config_command(app, "train", TrainConfig)
     def train_cmd(
@@ -51,14 +70,26 @@ def register(app: typer.Typer) -> None:
         evaluate: bool = typer.Option(True, "--evaluate/--no-evaluate", help="Evaluate the test views after training."),
         overwrite: bool = typer.Option(False, "--overwrite", help="Replace a finished run in OUT."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+        nproc: int = typer.Option(1, "--nproc", min=1, help="Data-parallel training in this many local processes "
+                                  "(gloo; NCCL on GPUs): each renders its share of every step's --views-per-step "
+                                  "views (docs/scaling.md)."),
+        distributed: bool = typer.Option(False, "--distributed", help="Be one rank of a process group started by "
+                                         "torchrun (`torchrun --nproc-per-node N -m brfgs train ... --distributed`)."),
         options: dict | None = None,
     ) -> None:
         """Train BRF-GS (or a baseline) on SCENE into OUT; rerun to resume; Ctrl-C keeps a checkpoint."""
         from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
-        from brfgs.train import train
+        from brfgs.train.trainer import train_parallel
 
         cfg = build_config(options, config)
-        path = train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1, log=_echo(quiet))
+        if distributed:
+            if nproc > 1:
+                raise UserError("give either --distributed (under torchrun) or --nproc N", field="--nproc")
+            if not _train_as_rank(scene, out, cfg, overwrite, from_stage1, quiet):
+                return  # ranks other than 0 leave the evaluation to rank 0
+            path = out / "model.safetensors"
+        else:
+            path = train_parallel(nproc, scene, out, cfg, overwrite=overwrite, from_stage1=from_stage1, quiet=quiet)
         typer.echo(f"model: {path}")
         if evaluate:
             for split in ("validation", "test") if cfg.validation else ("test",):

@@ -44,11 +44,15 @@ def accumulate(
     visible: torch.Tensor,  # [N] bool
     width: int,
     height: int,
+    grad_scale: float = 1.0,
 ) -> None:
-    """Add this step's screen-space gradient norms (pixels -> NDC) of visible Gaussians."""
+    """Add this step's screen-space gradient norms (pixels -> NDC) of visible Gaussians; the
+    gradient is multiplied by ``grad_scale`` first (the number of views a mean loss averaged)."""
     if means2d.grad is None:
         return
     g = means2d.grad.detach().clone()  # [N, 2] d loss / d pixel position
+    if grad_scale != 1.0:
+        g *= grad_scale
     g[:, 0] *= width / 2.0
     g[:, 1] *= height / 2.0
     norm = g.norm(dim=-1)

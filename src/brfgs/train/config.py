@@ -120,6 +120,9 @@ class TrainConfig:
     patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
                             "phase uses square patches of this many pixels.")
+    views_per_step: int = _opt(1, "Training views per step (the global batch; gradients are those of the mean loss, "
+                               "each view counts once in the densification statistics). Data-parallel runs "
+                               "(--nproc N, torchrun --distributed) share each step's views out: a multiple of N.")
     cache_gib: float = _opt(4.0, "Keep training cubes in memory up to this size (GiB), else read them per step.")
     checkpoint_every: int = _opt(500, "Steps between checkpoints (also at each stage's end and on Ctrl-C).")
     log_every: int = _opt(10, "Steps between rows of train_log.csv.")
@@ -167,6 +170,8 @@ class TrainConfig:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
+        if self.views_per_step < 1:
+            raise UserError(f"views_per_step must be >= 1, got {self.views_per_step}", field="views_per_step")
         if self.checkpoint_every < 1:
             raise UserError("checkpoint_every must be >= 1", field="checkpoint_every")
         bad = [c for c in self.components if c not in ("iso", "vol", "geo", "spec")]

@@ -131,14 +131,15 @@ def _plus(loss: Tensor, reg: Tensor | None) -> Tensor:
 
 
 def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tensor, batch: Batch,
-                   greg: Tensor | None) -> tuple[Tensor, float]:
-    """Decode the latent image and score it on all bands (eqs. 25–27); stage 2 samples rays."""
+                   greg: Tensor | None, gen: torch.Generator) -> tuple[Tensor, float]:
+    """Decode the latent image and score it on all bands (eqs. 25–27); stage 2 samples rays
+    (drawn from ``gen``)."""
     c = cfg
     h, w = lat.shape[:2]
     target, valid = batch.target, batch.valid
     if phase == Phase.STAGE2 and 0 < c.stage2_rays < h * w:
         # ray sampling: decode and score a random subset of the rendered pixels
-        idx = torch.randperm(h * w, generator=state.gen)[: c.stage2_rays]
+        idx = torch.randperm(h * w, generator=gen)[: c.stage2_rays]
         pred = decode_image(state.decoder, lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
@@ -194,7 +195,7 @@ def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera)
 
 
 def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, phase_steps: int,
-            nbrs: Tensor | None = None) -> StepResult:
+            nbrs: Tensor | None = None, gen: torch.Generator | None = None) -> StepResult:
     """Render ``batch`` for ``phase`` and compute its loss (with the phase's regularisers).
 
     ``phase_steps``: steps of the phase (the surface priors start at ``normal_start`` of it);
@@ -227,5 +228,5 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
         loss, psnr = _score_spectra(state, cfg, phase, composite_background(image, out.alpha, bg), batch, greg)
     else:
         lat = composite_background(image, out.alpha, state.extra["bg_latent"])
-        loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg)
+        loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg, state.gen if gen is None else gen)
     return StepResult(loss, psnr, out)

@@ -42,9 +42,12 @@ class DensifyStrategy:
         if means2d is not None and means2d.requires_grad and not means2d.is_leaf:
             means2d.retain_grad()
 
-    def after_backward(self, state: DensifyState, out: RenderOutput, width: int, height: int) -> None:
-        """Accumulate the screen-space gradient norms of the visible Gaussians."""
-        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height)
+    def after_backward(self, state: DensifyState, out: RenderOutput, width: int, height: int,
+                       grad_scale: float = 1.0) -> None:
+        """Accumulate the screen-space gradient norms of the visible Gaussians (``grad_scale``: the
+        number of views whose mean loss was backpropagated, so that each view counts as one, as
+        gsplat's strategy does for batches of cameras)."""
+        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height, grad_scale)
 
     def after_step(self, model: GaussianModel, opt: NamedAdam, state: DensifyState, step: int, steps: int,
                    gen: torch.Generator) -> None:

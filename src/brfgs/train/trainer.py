@@ -10,10 +10,17 @@ The :class:`Trainer` only orchestrates; the parts are
 
 Rerunning on an unfinished run folder resumes from checkpoints/last.safetensors and reproduces
 the uninterrupted run bit for bit; a finished folder is refused without ``overwrite``.
+
+Data-parallel training (:mod:`brfgs.train.distributed`): with a ``comm`` of N ranks each step's
+``views_per_step`` views are shared out, gradients and densification statistics summed; rank 0
+prepares the folder, runs the set-up and writes every file, the other ranks start from its
+first checkpoint (the resume path) and stay identical to it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
 import time
 from pathlib import Path
 from typing import Callable
@@ -27,6 +34,7 @@ from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
 from brfgs.train.config import TrainConfig
+from brfgs.train.distributed import Comm, check_identical, launch, reduce_gradients, shard
 from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, plan
@@ -42,35 +50,40 @@ class Trainer:
     """One training run of ``cfg`` on ``scene_path`` into ``out_dir`` (see the module docstring).
 
     ``callback(phase_name, step)`` is called after every step; ``from_stage1`` starts stage 2
-    from another run's checkpoints/stage1.safetensors; ``log`` prints progress lines.
+    from another run's checkpoints/stage1.safetensors; ``log`` prints progress lines; ``comm``:
+    the ranks of a data-parallel run (:mod:`brfgs.train.distributed`; default one process).
     """
 
     def __init__(self, scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False, progress: bool = True,
                  callback: Callable[[str, int], None] | None = None, from_stage1: str | Path | None = None,
-                 log: Callable[..., None] | None = print):
+                 log: Callable[..., None] | None = print, comm: Comm | None = None):
         self.scene_path = Path(scene_path)
         self.folder = RunFolder(out_dir)
         self.out = self.folder.out
         self.cfg = cfg.validate()
+        self.comm = comm or Comm()
+        if self.cfg.views_per_step % self.comm.world:
+            raise UserError(f"views_per_step ({self.cfg.views_per_step}) must be a multiple of the number of "
+                            f"processes ({self.comm.world}): each rank renders an equal share of every step's views",
+                            field="views_per_step")
         self.overwrite = overwrite
-        self.progress = progress
+        self.progress = progress and self.comm.is_main
         self.callback = callback
         self.from_stage1 = Path(from_stage1) if from_stage1 else None
-        self.log = log or (lambda *a, **k: None)
+        self.log = (log if self.comm.is_main else None) or (lambda *a, **k: None)
         self.state = TrainState(self.cfg)
         self.phases = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps)
         self.scene = None
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
+        self.comm_bytes = 0  # bytes this rank sent in the last step's all-reduces (0 in one process)
 
     # -------------------------------------------------------------------------------- entry
     def run(self) -> Path:
         """Train (or resume) to the end; returns the path of model.safetensors."""
-        if self.cfg.threads > 0:
-            torch.set_num_threads(self.cfg.threads)
-            configure_threads(self.cfg.threads)
+        self._set_threads()
         check_outside(self.out, self.scene_path)
-        self.folder.prepare(self.cfg, self.overwrite)
+        self._on_main(lambda: self.folder.prepare(self.cfg, self.overwrite))
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
                                 value_range=tuple(self.cfg.value_range), validation=self.cfg.validation,
                                 allow_outside_links=self.cfg.allow_outside_links)
@@ -83,15 +96,19 @@ class Trainer:
             self._start_from_stage1(self.from_stage1)
             self._checkpoint()
         else:
-            self.images = run_setup(st, self.scene, self.cfg, self.folder, self.progress, self.log)
-            self._checkpoint()
+            def setup():
+                self.images = run_setup(st, self.scene, self.cfg, self.folder, self.progress, self.log)
+                self._checkpoint()
+            self._on_main(setup)
+            if not self.comm.is_main:  # the other ranks start from rank 0's first checkpoint
+                self._resume()
         self._write_status("running")
         try:
             while st.phase != Phase.DONE:
                 tp = time.perf_counter()
                 self._run_phase(st.phase, dict(self.phases)[st.phase])
                 st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
-                if st.phase == Phase.STAGE1:
+                if st.phase == Phase.STAGE1 and self.comm.is_main:
                     st.save_checkpoint(self.folder.stage1_ckpt)
                 self._begin_phase(next_phase(self.phases, st.phase))
                 self._checkpoint()
@@ -101,9 +118,40 @@ class Trainer:
             self.log(f"interrupted: checkpoint saved at {st.phase.value} step {st.step}; rerun the same command to resume")
             raise
         st.timings["total_this_session"] = time.perf_counter() - t0
-        path = st.save_model(self.folder.model)
-        self._write_status("finished")
+        path = self.folder.model
+        if self.comm.is_main:
+            st.save_model(path)
+            self._write_status("finished")
+        self.comm.barrier()
         return path
+
+    def _set_threads(self) -> None:
+        """The option ``threads``; 0 with several local ranks: the cores shared out among them."""
+        n = self.cfg.threads
+        if n <= 0 and self.comm.world > 1:
+            local = int(os.environ.get("LOCAL_WORLD_SIZE", self.comm.world))
+            n = max(1, (os.cpu_count() or 1) // max(local, 1))
+        if n > 0:
+            torch.set_num_threads(n)
+            configure_threads(n)
+
+    def _on_main(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on rank 0 only; its failure reaches every rank (a UserError as one, anything
+        else as a RuntimeError on the other ranks) instead of leaving them waiting."""
+        err, failure = None, None
+        if self.comm.is_main:
+            try:
+                fn()
+            except BaseException as exc:  # noqa: BLE001 - re-raised below, after telling the other ranks
+                if self.comm.world == 1:
+                    raise
+                failure = exc
+                err = ("user" if isinstance(exc, UserError) else "bug", str(exc))
+        err = self.comm.broadcast_object(err)
+        if failure is not None:
+            raise failure
+        if err is not None:
+            raise UserError(err[1]) if err[0] == "user" else RuntimeError(f"rank 0 failed: {err[1]}")
 
     # -------------------------------------------------------------------------------- state
     def _train_images(self) -> TrainImages:
@@ -114,7 +162,9 @@ class Trainer:
         return self.images
 
     def _checkpoint(self) -> None:
-        """Save the resume state (the newest two are kept) and show the progress in run.json."""
+        """Save the resume state (the newest two are kept) and show the progress in run.json (rank 0)."""
+        if not self.comm.is_main:
+            return
         self.state.save_checkpoint(self.folder.rotate_checkpoints())
         self._write_status("running")
 
@@ -132,7 +182,8 @@ class Trainer:
             self.state.load_training_state(tensors, meta)
             order = [p.value for p, _ in self.phases] + [Phase.DONE.value]
             at = (order.index(self.state.phase.value), self.state.step)
-            self.folder.truncate_log(lambda ph, step: ph in order and (order.index(ph), step) <= at)
+            if self.comm.is_main:
+                self.folder.truncate_log(lambda ph, step: ph in order and (order.index(ph), step) <= at)
             return
         raise UserError("no checkpoint of this run can be read (" + "; ".join(errors) + "); "
                         "pass --overwrite to start again", file=self.folder.last_ckpt)
@@ -151,7 +202,8 @@ class Trainer:
             raise UserError("latent_dim differs from the stage-1 run", field="latent_dim")
         st.neural = None
         st.densify = DensifyState(st.gaussians.n)
-        self.folder.write_json("split.json", st.meta["scene"]["split"])
+        if self.comm.is_main:
+            self.folder.write_json("split.json", st.meta["scene"]["split"])
         st.meta["stage1_from"] = str(Path(path).resolve())
         st.timings = {k: v for k, v in st.timings.items() if k in ("bands", "init", "autoencoder", "stage1")}
         # continue the stage-1 run's random stream (view order, ray samples): with the same options,
@@ -168,6 +220,8 @@ class Trainer:
         self.state.step = 0
 
     def _write_status(self, status: str) -> None:
+        if not self.comm.is_main:
+            return
         st = self.state
         self.folder.write_status({"status": status, "phase": st.phase.value, "step": st.step,
                                   "config": self.cfg.to_dict(), "scene": str(self.scene_path.resolve()),
@@ -194,13 +248,14 @@ class Trainer:
         nbrs = None  # stage 2 (means frozen): each Gaussian's 8 nearest neighbours, for the normal smoothness
         if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in st.gaussians:
             nbrs = neighbours(st.gaussians.means)
+        check_identical(self.comm, {**st.params(), "densify.grad2d": st.densify.grad2d}, f"{phase.value} step {st.step}")
         bar = tqdm(total=steps, initial=st.step, desc=phase.value, dynamic_ncols=True) if self.progress else None
-        fh, writer = self.folder.open_log()
+        fh, writer = self.folder.open_log() if self.comm.is_main else (contextlib.nullcontext(), None)
         with fh:
             while st.step < steps:
                 lv, ps = self._one_step(phase, steps, strategy, nbrs)
                 self.history.append((phase.value, st.step, lv, ps))
-                if st.step % c.log_every == 0 or st.step == steps:
+                if writer is not None and (st.step % c.log_every == 0 or st.step == steps):
                     writer.writerow([phase.value, st.step, f"{lv:.6g}", f"{ps:.4f}", st.gaussians.n])
                     self._write_status("running")
                 if bar is not None:
@@ -208,7 +263,8 @@ class Trainer:
                     if st.step % 10 == 0:
                         bar.set_postfix(loss=f"{lv:.4f}", psnr=f"{ps:.2f}", n=st.gaussians.n)
                 if st.step % c.checkpoint_every == 0 and st.step < steps:
-                    fh.flush()
+                    if writer is not None:
+                        fh.flush()
                     self._checkpoint()
                 if self.callback is not None:
                     self.callback(phase.value, st.step)
@@ -216,33 +272,79 @@ class Trainer:
             bar.close()
 
     def _one_step(self, phase: Phase, steps: int, strategy: DensifyStrategy | None, nbrs) -> tuple[float, float]:
-        """One optimisation step; returns (loss, psnr)."""
+        """One optimisation step on ``views_per_step`` views (this rank's share of them); returns the
+        step's mean (loss, psnr) over all its views."""
         st, c = self.state, self.cfg
         st.opt.lrs = learning_rates(c, phase, st.step, steps, st.meta["extent_m"],
                                     [k for k, _ in st.neural.named_parameters()] if st.neural is not None else (),
                                     [k for k, _ in st.decoder.named_parameters()] if st.decoder is not None else ())
-        i, win = pick_view(st, self.scene.train_indices, self.scene.width, self.scene.height, c, phase)
-        batch = make_batch(st, self._train_images(), phase, i, win)
-        res = forward(st, c, phase, batch, steps, nbrs)
+        nv = c.views_per_step
+        views = [pick_view(st, self.scene.train_indices, self.scene.width, self.scene.height, c, phase)
+                 for _ in range(nv)]
+        # one view per step draws its ray samples from the run's generator (as always); several
+        # views each get a generator seeded from it, so that any rank can render any of them
+        gens = [None] if nv == 1 else [torch.Generator().manual_seed(int(x))
+                                       for x in torch.randint(0, 2**62, (nv,), generator=st.gen)]
         params = st.params()
         NamedAdam.zero_grad(params)
-        if strategy is not None:
-            strategy.before_backward(res.out)
-        res.loss.backward()
-        if strategy is not None:
-            strategy.after_backward(st.densify, res.out, win[2] if win else self.scene.width,
-                                    win[3] if win else self.scene.height)
+        stats = DensifyState(st.gaussians.n) if strategy is not None else None  # this step's statistics
+        sums = torch.zeros(2, dtype=torch.float64)  # loss, psnr summed over this rank's views
+        for (i, win), gen in shard(list(zip(views, gens)), self.comm):
+            res = forward(st, c, phase, make_batch(st, self._train_images(), phase, i, win), steps, nbrs, gen=gen)
+            if strategy is not None:
+                strategy.before_backward(res.out)
+            (res.loss if nv == 1 else res.loss / nv).backward()
+            if strategy is not None:
+                strategy.after_backward(stats, res.out, win[2] if win else self.scene.width,
+                                        win[3] if win else self.scene.height, grad_scale=nv)
+            sums += torch.tensor([float(res.loss.detach()), res.psnr], dtype=torch.float64)
+        self.comm_bytes = reduce_gradients(self.comm, params)
+        if stats is not None:
+            self._merge_densify_stats(stats)
+        self.comm.all_reduce_(sums)
         st.opt.step(params)
         if phase.trains_geometry:
             project_far_field(st.gaussians)
         st.step += 1
         if strategy is not None:
             strategy.after_step(st.gaussians, st.opt, st.densify, st.step, steps, st.gen)
-        return float(res.loss.detach()), res.psnr
+        return float(sums[0]) / nv, float(sums[1]) / nv
+
+    def _merge_densify_stats(self, stats: DensifyState) -> None:
+        """Add the step's densification statistics, summed over the ranks, to the run's."""
+        n = stats.grad2d.numel()
+        if self.comm.world > 1:
+            flat = self.comm.all_reduce_(torch.cat([stats.grad2d, stats.count]))  # [2N]
+            stats.grad2d, stats.count = flat[:n], flat[n:]
+            self.comm_bytes += flat.numel() * flat.element_size()
+        self.state.densify.grad2d += stats.grad2d
+        self.state.densify.count += stats.count
 
 
 def train(scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False, progress: bool = True, callback=None,
-          from_stage1=None, log=print) -> Path:
-    """Train a model on ``scene_path`` into ``out_dir`` (resumes an unfinished run); returns model.safetensors."""
+          from_stage1=None, log=print, comm: Comm | None = None) -> Path:
+    """Train a model on ``scene_path`` into ``out_dir`` (resumes an unfinished run); returns model.safetensors.
+    ``comm``: this process's rank of a data-parallel run (default: one process)."""
     return Trainer(scene_path, out_dir, cfg, overwrite=overwrite, progress=progress, callback=callback,
-                   from_stage1=from_stage1, log=log).run()
+                   from_stage1=from_stage1, log=log, comm=comm).run()
+
+
+def train_rank(comm: Comm, scene_path, out_dir, cfg: TrainConfig, overwrite: bool, from_stage1, quiet: bool) -> None:
+    """One rank of :func:`train_parallel` (module level: started by multiprocessing's spawn)."""
+    train(scene_path, out_dir, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1,
+          log=None if quiet else print, comm=comm)
+
+
+def train_parallel(nproc: int, scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False,
+                   from_stage1=None, quiet: bool = False) -> Path:
+    """:func:`train` in ``nproc`` local processes (data-parallel, gloo; NCCL with GPUs); returns the
+    path of model.safetensors, written by rank 0."""
+    if nproc == 1:
+        return train(scene_path, out_dir, cfg, overwrite, not quiet, from_stage1=from_stage1,
+                     log=None if quiet else print)
+    cfg.validate()
+    if cfg.views_per_step % nproc:
+        raise UserError(f"views_per_step ({cfg.views_per_step}) must be a multiple of --nproc ({nproc})",
+                        field="views_per_step")
+    launch(nproc, train_rank, (Path(scene_path), Path(out_dir), cfg, overwrite, from_stage1, quiet))
+    return RunFolder(out_dir).model
