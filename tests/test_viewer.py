@@ -85,12 +85,14 @@ def test_formula_rejects_everything_else(bad):
 
 
 @pytest.mark.parametrize("bands", [[0], [163, 0, 50, 123], [1, 2, 3], [5, 5], list(range(164))])
-def test_decode_bands_equals_the_full_decode(tm, bands):
-    from brfgs.spectral.band_decode import decode_bands
-    z = 2.0 * torch.randn(500, tm.gaussians.latent_dim, generator=torch.Generator().manual_seed(1))
-    full = tm.decoder.decode(z)  # [500, B]
-    assert torch.allclose(decode_bands(tm.decoder, z.reshape(20, 25, -1), bands), full[:, bands].reshape(20, 25, -1),
-                          atol=2e-6)
+@pytest.mark.parametrize("rows", [20, 700])  # 700 x 25 pixels: more than one block of BLOCK_PX, the last one partial
+def test_decode_bands_equals_the_full_decode(tm, bands, rows):
+    from brfgs.spectral.band_decode import BLOCK_PX, decode_bands
+    z = 2.0 * torch.randn(rows * 25, tm.gaussians.latent_dim, generator=torch.Generator().manual_seed(1))
+    assert rows < 100 or (rows * 25 > 2 * BLOCK_PX and rows * 25 % BLOCK_PX)
+    full = tm.decoder.decode(z)  # [N, B]
+    assert torch.allclose(decode_bands(tm.decoder, z.reshape(rows, 25, -1), bands),
+                          full[:, bands].reshape(rows, 25, -1), atol=2e-6)
 
 
 # ---------------------------------------------------------------- display modes
