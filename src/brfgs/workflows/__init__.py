@@ -1,4 +1,5 @@
-"""Workflows that chain training and analysis: the paper's ablation tables and the demo.
+"""Workflows that chain training and analysis: the paper's ablation tables, the demo, and batches of
+scenes as Ray tasks (``brfgs batch``).
 
 The layer above :mod:`brfgs.train` and :mod:`brfgs.analysis` (which never import each other).
 """

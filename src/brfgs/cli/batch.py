@@ -1,0 +1,48 @@
+"""``brfgs batch MANIFEST``: train → evaluate → products for a list of scenes, as Ray tasks.
+
+The manifest's schema is in :mod:`brfgs.workflows.manifest`; the options of where and how the
+scenes run are generated from :class:`brfgs.workflows.options.BatchConfig`. The body imports the
+library lazily so that ``brfgs --help`` stays fast (no torch, no Ray).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from brfgs.cli._config import apply_options, config_command
+from brfgs.workflows.options import BatchConfig
+
+
+def register(app: typer.Typer) -> None:
+    @config_command(app, "batch", BatchConfig)
+    def batch_cmd(
+        manifest: Path = typer.Argument(..., help="TOML, JSON or YAML list of scenes with their options "
+                                        "(docs/scaling.md).", show_default=False),
+        out: Path = typer.Option(None, "--out", "-o", help="Output root: OUT/<scene name>/ per scene and "
+                                 "OUT/summary.md/.csv/.json (default: the manifest's 'out', else "
+                                 "<manifest folder>/<manifest name>_batch)."),
+        dry_run: bool = typer.Option(False, "--dry-run", help="Read and check the manifest, print what each scene "
+                                     "would run, start nothing."),
+        quiet: bool = typer.Option(False, "--quiet", help="No line per scene while the batch runs."),
+        options: dict | None = None,
+    ) -> None:
+        """Run train -> evaluate -> products for every scene of MANIFEST as Ray tasks (locally, or on a cluster
+        with --address); finished scenes are skipped, a failed one is retried (unless its input is at fault)
+        and reported; writes OUT/summary.md, .csv and .json. Exit status 2 if any scene failed."""
+        from brfgs.workflows.batch import plan_lines, run_batch
+        from brfgs.workflows.manifest import read_manifest
+
+        bc = apply_options(BatchConfig(), options)
+        m = read_manifest(manifest, out)
+        if dry_run:
+            typer.echo("\n".join(plan_lines(m, bc)))
+            return
+        res = run_batch(m, bc, say=(lambda *a: None) if quiet else typer.echo)
+        typer.echo(res.markdown)
+        typer.echo(f"summary: {res.paths['md']}  {res.paths['csv']}  {res.paths['json']}")
+        for line in res.failures:
+            typer.echo(f"brfgs: error: {line}", err=True)
+        if res.failures:
+            raise typer.Exit(2)
