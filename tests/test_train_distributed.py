@@ -136,3 +136,22 @@ def test_helpers_in_one_process():
     assert torch.equal(fingerprint(a), fingerprint(dict(a)))
     assert not torch.equal(fingerprint(a), fingerprint(b))
     check_identical(Comm(), a, "one process")  # nothing to compare with: never raises
+
+
+def test_bench_parallel(scene, tmp_path):
+    """brfgs bench parallel: both process counts timed and scored; with one thread per process
+    the models are identical; only the 2-process run all-reduces, and its volume is the size of
+    the gradients (4 bytes per trained value) plus the densification statistics in stage 1."""
+    from brfgs.workflows.bench_parallel import bench_parallel
+
+    cfg = preset("tiny", **{**OPTS, "stage1_steps": 8, "stage2_steps": 4})
+    res = bench_parallel(scene, tmp_path / "bp", cfg, nprocs=(1, 2))
+    one, two = res["summary"]["1"], res["summary"]["2"]
+    assert res["max_abs_model_difference"]["2"] == 0.0
+    assert one["psnr"] == two["psnr"] and all(p > 10 for p in one["psnr"])
+    assert set(one["ms_per_step"]) == {"stage1", "stage2"} and all(v > 0 for v in two["ms_per_step"].values())
+    assert all(v == 0 for v in one["allreduce_bytes_per_step"].values())
+    model = load(tmp_path / "bp" / "n2_0" / "model.safetensors")[0]
+    n = model["param.means"].shape[0]
+    assert two["allreduce_bytes_per_step"]["stage2"] >= 4 * n * 3  # at least the latents' gradients
+    assert two["allreduce_bytes_per_step"]["stage1"] > 4 * n * (3 + 4 + 3 + 1)  # means, quats, scales, opacities

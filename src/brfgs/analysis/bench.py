@@ -97,7 +97,8 @@ def _timed(fn: Callable[[], object], repeats: int) -> tuple[list[float], list[fl
     return ts, cs
 
 
-def _machine(backend: str, load_before: tuple[float, float, float]) -> dict:
+def machine_record(backend: str, load_before: tuple[float, float, float]) -> dict:
+    """Machine, threads, backend and load averages before and after a benchmark (its JSON record)."""
     return {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(), "backend": backend,
             "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())}
@@ -148,7 +149,7 @@ def bench_analysis(
 
     pts, pcs = _timed(pm, polar_repeats)
     return {
-        "machine": _machine(backend, load_before),
+        "machine": machine_record(backend, load_before),
         "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
         "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
         "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
@@ -226,6 +227,6 @@ def bench_view(model: str | Path | None = None, *, n_gaussians: int = 50_000, si
             row["simulator_view_s"] = _simulator_view_s(size, len(tm.wavelengths_nm))
             row["speedup_vs_simulator"] = row["simulator_view_s"] / row["fused"]["median_s"]
         rows.append(row)
-    return {"machine": _machine(backend, load_before), "model": "synthetic" if model is None else str(model),
+    return {"machine": machine_record(backend, load_before), "model": "synthetic" if model is None else str(model),
             "n_gaussians": tm.n_gaussians, "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
             "repeats": repeats, "views": rows, "peak_rss_mib": _peak_rss_mib()}

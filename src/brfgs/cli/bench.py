@@ -248,3 +248,40 @@ def bench_viewer_cmd(
         typer.echo(f"{name:12s} median {r['median_s'] * 1e3:6.1f} ms wall, {r['median_cpu_s'] * 1e3:6.1f} ms CPU")
     if json_path is not None:
         _write_json(json_path, res)
+
+
+@config_command(bench_app, "parallel", TrainConfig)
+def bench_parallel_cmd(
+    scene: Path = typer.Argument(..., help="Scene folder."),
+    out: Path = typer.Argument(..., help="Folder for the timed runs (n<k>_<r>; replaced)."),
+    nprocs: str = typer.Option("1,2", "--nprocs", help="Process counts to compare, comma-separated (first = reference)."),
+    repeats: int = typer.Option(1, "--repeats", min=1, help="Alternating rounds per process count (median reported)."),
+    json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
+    options: dict | None = None,
+) -> None:
+    """Train SCENE in 1 and in N data-parallel processes (same seed and --views-per-step, default 2 here),
+    alternating in one run; report seconds per phase and per step, the speed-up, the bytes all-reduced per
+    step and the largest model difference (docs/scaling.md)."""
+    from brfgs.workflows.bench_parallel import bench_parallel
+
+    if json_path is not None and json_path.is_dir():
+        raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
+    options = dict(options or {})
+    options.setdefault(("views_per_step",), 2)
+    counts = tuple(_int_list(nprocs, "--nprocs"))
+    res = bench_parallel(scene, out, build_config(options), nprocs=counts, repeats=repeats)
+    la = res["machine"]["load_average_1_5_15_before"]
+    typer.echo(f"load average before {la[0]:.1f} on {res['machine']['cpu_count']} cores; {repeats} round(s); "
+               f"{res['config']['views_per_step']} views per step")
+    for n, s in res["summary"].items():
+        per = ", ".join(f"{k} {v:.1f} ms/step" for k, v in s["ms_per_step"].items())
+        mb = ", ".join(f"{k} {v / 1e6:.2f} MB" for k, v in s["allreduce_bytes_per_step"].items())
+        acc = ", ".join(f"{a:.2f} dB / {b:.4f}" for a, b in zip(s["psnr"], s["sam"]))
+        typer.echo(f"{n} process(es): wall {s['median_wall_s']:.1f} s; {per}; all-reduced per step: {mb or '-'}; "
+                   f"CIR PSNR / SAM against {s['against']}: {acc}")
+    for n, r in res["speedup_vs_one"].items():
+        sp = ", ".join(f"{k} x{v:.2f}" for k, v in r.items())
+        typer.echo(f"speed-up of {n} processes (same run): {sp}; max |model difference| "
+                   f"{res['max_abs_model_difference'][n]:.2e}")
+    if json_path is not None:
+        _write_json(json_path, res)

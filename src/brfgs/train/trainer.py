@@ -77,6 +77,7 @@ class Trainer:
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
         self.comm_bytes = 0  # bytes this rank sent in the last step's all-reduces (0 in one process)
+        self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
 
     # -------------------------------------------------------------------------------- entry
     def run(self) -> Path:
@@ -228,6 +229,9 @@ class Trainer:
                                   "timings_s": st.timings,
                                   "n_gaussians": st.gaussians.n if st.gaussians is not None else None,
                                   "learned_irradiance_scale": self._learned_scales(),
+                                  "data_parallel": {"processes": self.comm.world, "views_per_step": self.cfg.views_per_step,
+                                                    "allreduce_bytes_per_step": {k: v[0] / max(v[1], 1) for k, v in
+                                                                                 self.comm_totals.items()}},
                                   "model": self.folder.model.name if status == "finished" else None})
 
     def _learned_scales(self) -> dict | None:
@@ -302,6 +306,8 @@ class Trainer:
         if stats is not None:
             self._merge_densify_stats(stats)
         self.comm.all_reduce_(sums)
+        tot = self.comm_totals.setdefault(phase.value, [0, 0])
+        tot[0], tot[1] = tot[0] + self.comm_bytes, tot[1] + 1
         st.opt.step(params)
         if phase.trains_geometry:
             project_far_field(st.gaussians)

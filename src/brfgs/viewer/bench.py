@@ -8,7 +8,7 @@ import statistics
 import time
 from pathlib import Path
 
-from brfgs.analysis.bench import _machine, synthetic_model
+from brfgs.analysis.bench import machine_record, synthetic_model
 from brfgs.analysis.views import view_camera
 from brfgs.model import TrainedModel
 from brfgs.viewer.frames import parse_mode, render_frame
@@ -37,6 +37,6 @@ def bench_viewer(model: str | Path | None = None, *, n_gaussians: int = 50_000, 
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         rows[text] = {"median_s": statistics.median(wall), "all_s": wall, "median_cpu_s": statistics.median(cpu)}
-    return {"machine": _machine(backend, load_before),
+    return {"machine": machine_record(backend, load_before),
             "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
             "bands": len(tm.wavelengths_nm), "size": [intr.w, intr.h], "repeats": repeats, "modes": rows}
