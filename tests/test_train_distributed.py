@@ -5,9 +5,12 @@ the command line once with exit status 2."""
 
 from __future__ import annotations
 
+import json
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 import torch
@@ -88,6 +91,38 @@ def test_torchrun_distributed(scene, reference, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=600)
     assert res.returncode == 0, res.stderr[-3000:]
     _assert_same(reference[0], load(out / "model.safetensors")[0])
+
+
+def test_ctrl_c_keeps_a_checkpoint_and_the_rerun_finishes(scene, tmp_path):
+    """Ctrl-C on `brfgs train --nproc 2` (SIGINT to the process group, as a terminal sends it): rank 0
+    saves its checkpoint, exit status 130, run.json says interrupted; the same command finishes the
+    run, and the model is that of an uninterrupted run."""
+    long = [*ARGS]
+    long[long.index("--stage1-steps") + 1] = "400"
+    out = tmp_path / "int"
+    cmd = [sys.executable, "-m", "brfgs", "train", str(scene), str(out), "--nproc", "2", *long]
+    proc = subprocess.Popen(cmd, env=_env(), start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline, step = time.time() + 300, 0
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            st = json.loads((out / "run.json").read_text())
+            step = st["step"] if st["phase"] == "stage1" else step
+        except (OSError, ValueError, KeyError):
+            pass
+        if step >= 20:
+            break
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()[1][-3000:]
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err[-3000:]
+    st = json.loads((out / "run.json").read_text())
+    assert st["status"] == "interrupted" and st["phase"] == "stage1" and 20 <= st["step"] < 400
+    res = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    ref = train(scene, tmp_path / "ref", preset("tiny", **{**OPTS, "stage1_steps": 400}), progress=False, log=None)
+    _assert_same(load(ref)[0], load(out / "model.safetensors")[0])
 
 
 def test_user_errors_are_one_line_exit_2(scene, reference, tmp_path):

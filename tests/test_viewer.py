@@ -258,3 +258,20 @@ def test_bench_viewer_rejects_a_bad_mode_before_rendering(capsys):
     from brfgs.cli import main
     assert main(["bench", "viewer", "--modes", "cir,rainbow"]) == 2
     assert "rainbow" in capsys.readouterr().err
+
+
+def test_bench_viewer_times_frames_and_band_decoding(tmp_path):
+    """brfgs bench viewer on a small synthetic model: a median per mode, and for the spectral modes the
+    band decoding timed against the full decode on the same latents, equal within float rounding."""
+    from brfgs.cli import main
+    out = tmp_path / "bench.json"
+    assert main(["bench", "viewer", "--gaussians", "500", "--size", "32", "--modes", "cir,depth,band:860",
+                 "--repeats", "2", "--threads", "1", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert set(res["modes"]) == {"cir", "depth", "band:860"}
+    assert all(r["median_s"] > 0 for r in res["modes"].values())
+    assert "decode" not in res["modes"]["depth"]
+    for name in ("cir", "band:860"):
+        dec = res["modes"][name]["decode"]
+        assert dec["median_s"] > 0 and dec["reference_median_s"] > 0 and dec["max_abs_difference"] < 1e-5
+    assert len(res["modes"]["cir"]["decode"]["bands"]) == 3

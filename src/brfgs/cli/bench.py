@@ -245,7 +245,11 @@ def bench_viewer_cmd(
                f"threads numba {m['numba_threads']}, torch {m['torch_threads']}; load average before "
                f"{m['load_average_1_5_15_before'][0]:.1f} on {m['cpu_count']} cores")
     for name, r in res["modes"].items():
-        typer.echo(f"{name:12s} median {r['median_s'] * 1e3:6.1f} ms wall, {r['median_cpu_s'] * 1e3:6.1f} ms CPU")
+        dec = r.get("decode")
+        extra = "" if dec is None else (f"; decoding {len(dec['bands'])} band(s) {dec['median_s'] * 1e3:.1f} ms vs full "
+                                        f"decode {dec['reference_median_s'] * 1e3:.1f} ms (x{dec['speedup_vs_reference']:.1f}"
+                                        f", max |diff| {dec['max_abs_difference']:.1e})")
+        typer.echo(f"{name:12s} median {r['median_s'] * 1e3:6.1f} ms wall, {r['median_cpu_s'] * 1e3:6.1f} ms CPU{extra}")
     if json_path is not None:
         _write_json(json_path, res)
 

@@ -184,8 +184,8 @@ def _rank_main(rank: int, world: int, port: int, fn: Callable, args: tuple) -> N
         if rank == 0:
             print(f"brfgs: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
-    except KeyboardInterrupt:
-        sys.exit(130)
+    except KeyboardInterrupt:  # Ctrl-C reaches every rank; rank 0 saved its checkpoint (the trainer)
+        sys.exit(130 if rank == 0 else 0)  # the others end quietly, so that rank 0 is not terminated early
     except BaseException:
         traceback.print_exc()
         raise
@@ -194,14 +194,31 @@ def _rank_main(rank: int, world: int, port: int, fn: Callable, args: tuple) -> N
 def launch(nproc: int, fn: Callable, args: tuple = ()) -> None:
     """Run ``fn(comm, *args)`` in ``nproc`` new local processes joined by a gloo (or NCCL) group
     on a free loopback port. ``fn`` and ``args`` must be picklable. Exit status 2 of a rank (a
-    user error, already printed) becomes a UserError-free ``SystemExit(2)``; another failure of
-    a rank is a RuntimeError naming it."""
+    user error, already printed) becomes ``SystemExit(2)``; Ctrl-C, which reaches every rank,
+    waits for rank 0 to save its checkpoint and becomes ``SystemExit(130)`` (a second Ctrl-C stops
+    at once); another failure of a rank is a RuntimeError naming it."""
     port = free_port()
     # when one rank stops (a user error, already printed), torch terminates the others with a warning
     logging.getLogger("torch.multiprocessing.spawn").setLevel(logging.ERROR)
+    ctx = mp.start_processes(_rank_main, args=(nproc, port, fn, args), nprocs=nproc, join=False,
+                             start_method="spawn")
+    interrupted = False
     try:
-        mp.start_processes(_rank_main, args=(nproc, port, fn, args), nprocs=nproc, join=True, start_method="spawn")
+        while True:
+            try:
+                if ctx.join():
+                    break
+            except KeyboardInterrupt:
+                if interrupted:
+                    raise
+                interrupted = True  # the ranks have it too: let rank 0 write its checkpoint
     except mp.ProcessExitedException as exc:
         if exc.exit_code in (2, 130):
             raise SystemExit(exc.exit_code) from None
         raise RuntimeError(f"training rank {exc.error_index} failed (exit status {exc.exit_code})") from None
+    finally:
+        for proc in ctx.processes:
+            if proc.is_alive():
+                proc.terminate()
+    if interrupted:
+        raise SystemExit(130)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -77,6 +79,8 @@ class Trainer:
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
         self.comm_bytes = 0  # bytes this rank sent in the last step's all-reduces (0 in one process)
+        self._ctrl_c = False  # Ctrl-C seen by this process (see _steps_finish_on_ctrl_c)
+        self._stop_requested = False  # ... by any rank, agreed at the end of the last step
         self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
 
     # -------------------------------------------------------------------------------- entry
@@ -105,14 +109,8 @@ class Trainer:
                 self._resume()
         self._write_status("running")
         try:
-            while st.phase != Phase.DONE:
-                tp = time.perf_counter()
-                self._run_phase(st.phase, dict(self.phases)[st.phase])
-                st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
-                if st.phase == Phase.STAGE1 and self.comm.is_main:
-                    st.save_checkpoint(self.folder.stage1_ckpt)
-                self._begin_phase(next_phase(self.phases, st.phase))
-                self._checkpoint()
+            with self._steps_finish_on_ctrl_c():
+                self._run_phases()
         except KeyboardInterrupt:
             self._checkpoint()
             self._write_status("interrupted")
@@ -125,6 +123,40 @@ class Trainer:
             self._write_status("finished")
         self.comm.barrier()
         return path
+
+    def _run_phases(self) -> None:
+        """Every phase left, each followed by its checkpoints and the next phase's set-up."""
+        st = self.state
+        while st.phase != Phase.DONE:
+            tp = time.perf_counter()
+            self._run_phase(st.phase, dict(self.phases)[st.phase])
+            st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
+            if st.phase == Phase.STAGE1 and self.comm.is_main:
+                st.save_checkpoint(self.folder.stage1_ckpt)
+            self._begin_phase(next_phase(self.phases, st.phase))
+            self._checkpoint()
+
+    @contextlib.contextmanager
+    def _steps_finish_on_ctrl_c(self):
+        """While the phases run, Ctrl-C (SIGINT) ends the run at the end of the current step, on every
+        rank at the same step (the request is all-reduced with the step's losses), so that the
+        checkpoint holds a whole step; a second Ctrl-C stops at once. Only in the main thread."""
+        self._ctrl_c = False
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def handler(signum, frame):
+            if self._ctrl_c:
+                raise KeyboardInterrupt
+            self._ctrl_c = True
+            self.log("interrupt: finishing the current step, then saving a checkpoint (Ctrl-C again to stop now)")
+
+        previous = signal.signal(signal.SIGINT, handler)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, previous)
 
     def _set_threads(self) -> None:
         """The option ``threads``; 0 with several local ranks: the cores shared out among them."""
@@ -272,6 +304,8 @@ class Trainer:
                     self._checkpoint()
                 if self.callback is not None:
                     self.callback(phase.value, st.step)
+                if self._stop_requested:
+                    raise KeyboardInterrupt
         if bar is not None:
             bar.close()
 
@@ -292,7 +326,7 @@ class Trainer:
         params = st.params()
         NamedAdam.zero_grad(params)
         stats = DensifyState(st.gaussians.n) if strategy is not None else None  # this step's statistics
-        sums = torch.zeros(2, dtype=torch.float64)  # loss, psnr summed over this rank's views
+        sums = torch.zeros(3, dtype=torch.float64)  # loss, psnr summed over this rank's views; Ctrl-C seen
         for (i, win), gen in shard(list(zip(views, gens)), self.comm):
             res = forward(st, c, phase, make_batch(st, self._train_images(), phase, i, win), steps, nbrs, gen=gen)
             if strategy is not None:
@@ -301,11 +335,13 @@ class Trainer:
             if strategy is not None:
                 strategy.after_backward(stats, res.out, win[2] if win else self.scene.width,
                                         win[3] if win else self.scene.height, grad_scale=nv)
-            sums += torch.tensor([float(res.loss.detach()), res.psnr], dtype=torch.float64)
+            sums[:2] += torch.tensor([float(res.loss.detach()), res.psnr], dtype=torch.float64)
         self.comm_bytes = reduce_gradients(self.comm, params)
         if stats is not None:
             self._merge_densify_stats(stats)
+        sums[2] = float(self._ctrl_c)
         self.comm.all_reduce_(sums)
+        self._stop_requested = bool(sums[2] > 0)
         tot = self.comm_totals.setdefault(phase.value, [0, 0])
         tot[0], tot[1] = tot[0] + self.comm_bytes, tot[1] + 1
         st.opt.step(params)

@@ -108,7 +108,7 @@ def _colormap(values: np.ndarray, lo: float, hi: float, name: str) -> np.ndarray
     return rgb
 
 
-def _mode_bands(tm: TrainedModel, mode: DisplayMode) -> list[int]:
+def mode_bands(tm: TrainedModel, mode: DisplayMode) -> list[int]:
     """Band indices a spectral mode shows (CIR: the model's CIR bands)."""
     if mode.kind == "cir":
         return list(tm.cir_indices)
@@ -132,7 +132,7 @@ def _spectral_view(tm: TrainedModel, cam, sun: tuple[float, float], bands: list[
 
 
 def _planes_rgb(tm: TrainedModel, planes: np.ndarray, mode: DisplayMode) -> np.ndarray:
-    """[H, W, 3] in [0, 1] of a spectral mode from its planes [H, W, nb] (:func:`_mode_bands`)."""
+    """[H, W, 3] in [0, 1] of a spectral mode from its planes [H, W, nb] (:func:`mode_bands`)."""
     if mode.kind == "cir":
         return cir_composite(planes, (0, 1, 2), tm.cir_scale)
     if mode.kind == "truecolor":
@@ -210,7 +210,7 @@ def render_frame(tm: TrainedModel, c2w: np.ndarray, intr: Intrinsics, mode: Disp
             view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], backend=backend)
             rgb = view.cir
         elif mode.needs_cube:
-            view, planes = _spectral_view(tm, cam, sun, _mode_bands(tm, mode), backend)
+            view, planes = _spectral_view(tm, cam, sun, mode_bands(tm, mode), backend)
             rgb = _planes_rgb(tm, planes, mode)
             if mode.kind == "cir":
                 view.cir = rgb
