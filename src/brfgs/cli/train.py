@@ -39,25 +39,6 @@ def _echo(quiet: bool):
     return (lambda *a: None) if quiet else typer.echo
 
 
-def _train_as_rank(scene: Path, out: Path, cfg, overwrite: bool, from_stage1, quiet: bool) -> bool:
-    """Train as one rank of torchrun's process group; True on rank 0. A user error is printed by
-    rank 0 only (the other ranks exit with status 2 silently)."""
-    from brfgs.train.distributed import init_from_env, shutdown
-    from brfgs.train.trainer import train
-
-    comm = init_from_env(cfg.backend)
-    try:
-        train(scene, out, cfg, overwrite=overwrite, progress=not quiet, from_stage1=from_stage1,
-              log=_echo(quiet), comm=comm)
-    except UserError:
-        if comm.is_main:
-            raise
-        raise SystemExit(2) from None
-    finally:
-        shutdown()
-    return comm.is_main
-
-
 def register(app: typer.Typer) -> None:
     @config_command(app, "train", TrainConfig)
     def train_cmd(
@@ -79,13 +60,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Train BRF-GS (or a baseline) on SCENE into OUT; rerun to resume; Ctrl-C keeps a checkpoint."""
         from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
-        from brfgs.train.trainer import train_parallel
+        from brfgs.train.distributed import run_as_rank
+        from brfgs.train.trainer import train_parallel, train_rank
 
         cfg = build_config(options, config)
         if distributed:
             if nproc > 1:
                 raise UserError("give either --distributed (under torchrun) or --nproc N", field="--nproc")
-            if not _train_as_rank(scene, out, cfg, overwrite, from_stage1, quiet):
+            if not run_as_rank(train_rank, (scene, out, cfg, overwrite, from_stage1, quiet), cfg.backend):
                 return  # ranks other than 0 leave the evaluation to rank 0
             path = out / "model.safetensors"
         else:

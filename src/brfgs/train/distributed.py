@@ -108,6 +108,13 @@ def shutdown() -> None:
         dist.destroy_process_group()
 
 
+def check_views_per_step(views_per_step: int, world: int) -> None:
+    """UserError unless the global batch ``views_per_step`` shares out equally over ``world`` ranks."""
+    if views_per_step % world:
+        raise UserError(f"views_per_step ({views_per_step}) must be a multiple of the number of processes "
+                        f"({world}): each rank renders an equal share of every step's views", field="views_per_step")
+
+
 def shard(items: Sequence, comm: Comm) -> list:
     """This rank's share of one step's global batch: items r, r + N, r + 2N, ..."""
     return list(items[comm.rank :: comm.world])
@@ -169,25 +176,37 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def run_as_rank(fn: Callable, args: tuple = (), backend: str = "auto") -> bool:
+    """Join the process group the environment describes, run ``fn(comm, *args)`` and leave the
+    group; returns True on rank 0. A UserError propagates on rank 0 only (the caller prints it
+    once); the other ranks end with ``SystemExit(2)`` instead."""
+    comm = init_from_env(backend)
+    try:
+        fn(comm, *args)
+    except UserError:
+        if comm.is_main:
+            raise
+        raise SystemExit(2) from None
+    finally:
+        shutdown()
+    return comm.is_main
+
+
 def _rank_main(rank: int, world: int, port: int, fn: Callable, args: tuple) -> None:
-    """Entry of one process started by :func:`launch`: join the group, run ``fn(comm, *args)``.
+    """Entry of one process started by :func:`launch`: :func:`run_as_rank` on a loopback group.
     A UserError is printed once (rank 0) as one line and the process exits with status 2."""
     os.environ.update({"RANK": str(rank), "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank),
                        "LOCAL_WORLD_SIZE": str(world), "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)})
     try:
-        comm = init_from_env()
-        try:
-            fn(comm, *args)
-        finally:
-            shutdown()
-    except UserError as exc:
-        if rank == 0:
-            print(f"brfgs: error: {exc}", file=sys.stderr, flush=True)
+        run_as_rank(fn, args)
+    except UserError as exc:  # rank 0's (the others leave with SystemExit(2))
+        print(f"brfgs: error: {exc}", file=sys.stderr, flush=True)
         sys.exit(2)
     except KeyboardInterrupt:  # Ctrl-C reaches every rank; rank 0 saved its checkpoint (the trainer)
         sys.exit(130 if rank == 0 else 0)  # the others end quietly, so that rank 0 is not terminated early
-    except BaseException:
-        traceback.print_exc()
+    except BaseException as exc:
+        if not isinstance(exc, SystemExit):
+            traceback.print_exc()
         raise
 
 

@@ -36,7 +36,7 @@ from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
 from brfgs.train.config import TrainConfig
-from brfgs.train.distributed import Comm, check_identical, launch, reduce_gradients, shard
+from brfgs.train.distributed import Comm, check_identical, check_views_per_step, launch, reduce_gradients, shard
 from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, plan
@@ -64,10 +64,7 @@ class Trainer:
         self.out = self.folder.out
         self.cfg = cfg.validate()
         self.comm = comm or Comm()
-        if self.cfg.views_per_step % self.comm.world:
-            raise UserError(f"views_per_step ({self.cfg.views_per_step}) must be a multiple of the number of "
-                            f"processes ({self.comm.world}): each rank renders an equal share of every step's views",
-                            field="views_per_step")
+        check_views_per_step(self.cfg.views_per_step, self.comm.world)
         self.overwrite = overwrite
         self.progress = progress and self.comm.is_main
         self.callback = callback
@@ -78,7 +75,6 @@ class Trainer:
         self.scene = None
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
-        self.comm_bytes = 0  # bytes this rank sent in the last step's all-reduces (0 in one process)
         self._ctrl_c = False  # Ctrl-C seen by this process (see _steps_finish_on_ctrl_c)
         self._stop_requested = False  # ... by any rank, agreed at the end of the last step
         self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
@@ -336,14 +332,14 @@ class Trainer:
                 strategy.after_backward(stats, res.out, win[2] if win else self.scene.width,
                                         win[3] if win else self.scene.height, grad_scale=nv)
             sums[:2] += torch.tensor([float(res.loss.detach()), res.psnr], dtype=torch.float64)
-        self.comm_bytes = reduce_gradients(self.comm, params)
+        sent = reduce_gradients(self.comm, params)  # bytes this rank all-reduced (0 in one process)
         if stats is not None:
-            self._merge_densify_stats(stats)
+            sent += self._merge_densify_stats(stats)
         sums[2] = float(self._ctrl_c)
         self.comm.all_reduce_(sums)
         self._stop_requested = bool(sums[2] > 0)
         tot = self.comm_totals.setdefault(phase.value, [0, 0])
-        tot[0], tot[1] = tot[0] + self.comm_bytes, tot[1] + 1
+        tot[0], tot[1] = tot[0] + sent, tot[1] + 1
         st.opt.step(params)
         if phase.trains_geometry:
             project_far_field(st.gaussians)
@@ -352,15 +348,17 @@ class Trainer:
             strategy.after_step(st.gaussians, st.opt, st.densify, st.step, steps, st.gen)
         return float(sums[0]) / nv, float(sums[1]) / nv
 
-    def _merge_densify_stats(self, stats: DensifyState) -> None:
-        """Add the step's densification statistics, summed over the ranks, to the run's."""
-        n = stats.grad2d.numel()
+    def _merge_densify_stats(self, stats: DensifyState) -> int:
+        """Add the step's densification statistics, summed over the ranks, to the run's; returns the
+        bytes this rank all-reduced."""
+        n, sent = stats.grad2d.numel(), 0
         if self.comm.world > 1:
             flat = self.comm.all_reduce_(torch.cat([stats.grad2d, stats.count]))  # [2N]
             stats.grad2d, stats.count = flat[:n], flat[n:]
-            self.comm_bytes += flat.numel() * flat.element_size()
+            sent = flat.numel() * flat.element_size()
         self.state.densify.grad2d += stats.grad2d
         self.state.densify.count += stats.count
+        return sent
 
 
 def train(scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False, progress: bool = True, callback=None,
@@ -384,9 +382,6 @@ def train_parallel(nproc: int, scene_path, out_dir, cfg: TrainConfig, overwrite:
     if nproc == 1:
         return train(scene_path, out_dir, cfg, overwrite, not quiet, from_stage1=from_stage1,
                      log=None if quiet else print)
-    cfg.validate()
-    if cfg.views_per_step % nproc:
-        raise UserError(f"views_per_step ({cfg.views_per_step}) must be a multiple of --nproc ({nproc})",
-                        field="views_per_step")
+    check_views_per_step(cfg.validate().views_per_step, nproc)  # before any process starts
     launch(nproc, train_rank, (Path(scene_path), Path(out_dir), cfg, overwrite, from_stage1, quiet))
     return RunFolder(out_dir).model
