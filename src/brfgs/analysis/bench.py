@@ -101,6 +101,7 @@ def machine_record(backend: str, load_before: tuple[float, float, float]) -> dic
     """Machine, threads, backend and load averages before and after a benchmark (its JSON record)."""
     return {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(), "backend": backend,
+            "openmp_env": {k: os.environ[k] for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in os.environ},
             "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())}
 
 

@@ -18,9 +18,13 @@ import importlib.util
 import os
 import sys
 
-# Idle OpenMP threads of numba/torch spin by default; on a 2-core machine shared with other
-# work that made rasterizer frames 1.2-3.4x slower (BENCHMARKS.md). Must be set before torch loads.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# Idle OpenMP threads of numba/torch (GNU libgomp) spin 300 000 times by default before they sleep: on a
+# 2-core machine shared with other work that made frames 2-3x slower, while sleeping at once
+# (OMP_WAIT_POLICY=PASSIVE) made a quiet machine's 128-px view 25 % slower (the next parallel op waits for
+# the threads to wake). A short spin keeps both (BENCHMARKS.md "OpenMP threads"). A user's own
+# OMP_WAIT_POLICY or GOMP_SPINCOUNT is left as it is. Must be set before torch loads.
+if "OMP_WAIT_POLICY" not in os.environ:
+    os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
 import typer
 

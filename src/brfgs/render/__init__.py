@@ -34,8 +34,10 @@ Threads
 ``rasterize`` (numba kernels and torch glue alternate), so they do not compete. Without a call,
 the first ``cpu`` render gives numba torch's thread count (or ``$BRFGS_NUM_THREADS`` to both) and
 leaves torch's setting alone. Use ``configure_threads(1)`` in each of several worker processes.
-On a shared machine set ``OMP_WAIT_POLICY=PASSIVE`` before torch is imported so that idle
-OpenMP threads sleep instead of spinning (measured 1.2–3.4× faster wall time in alternating runs at load average ~12 on 2 cores).
+Idle OpenMP threads spin 300 000 times before they sleep unless told otherwise: the ``brfgs`` command
+sets ``GOMP_SPINCOUNT=1000`` before torch is imported (a library user can do the same), which was as fast
+as spinning on a quiet machine and as fast as ``OMP_WAIT_POLICY=PASSIVE`` on an oversubscribed one
+(BENCHMARKS.md, "OpenMP threads").
 
 numba kernels are compiled with ``cache=True``: the first use in a fresh checkout compiles for
 tens of seconds and stores the result in ``__pycache__``; later processes load it.

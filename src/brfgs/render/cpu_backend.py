@@ -15,6 +15,7 @@ from torch import Tensor
 
 from brfgs.render import _numba_kernels as nk
 from brfgs.render._common import ALPHA_MIN, EXTENT_ABS, EXTENT_REL, fov_limits, n_tiles
+from brfgs.render.depth_sort import stable_depth_order
 from brfgs.render.torch_backend import Projection
 
 
@@ -149,7 +150,7 @@ def binning(
     vis = proj.visible.numpy()
     idx = np.flatnonzero(vis)
     z = proj.depths.detach().numpy()[idx]
-    order = idx[np.argsort(z, kind="stable")].astype(np.int64)
+    order = idx[stable_depth_order(z)].astype(np.int64)
     ntx, nty = n_tiles(width, height)
     rect = proj.rect.numpy()
     ts, tg, gs, ge = nk.bin_tiles(order, rect, ntx, ntx * nty, proj.means2d.shape[0])

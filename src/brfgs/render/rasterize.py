@@ -40,9 +40,8 @@ def configure_threads(n: int | None = None) -> int:
     The ``cpu`` backend alternates between numba kernels and small PyTorch ops, never both at
     once, so both pools get the same count; the pools do not overlap in time. Without a call,
     the first ``cpu`` render sets numba's count to torch's (or to $BRFGS_NUM_THREADS, applied to
-    both). On a machine shared with other jobs, start the process with OMP_WAIT_POLICY=PASSIVE
-    (before torch is imported): idle OpenMP threads then sleep instead of spinning, which was
-    1.2–3.4× faster in wall time at load average ~12 on 2 cores (BENCHMARKS). Returns ``n``.
+    both). How long idle OpenMP threads spin before they sleep matters on a shared machine: the
+    ``brfgs`` command sets GOMP_SPINCOUNT=1000 before torch is imported (BENCHMARKS.md, "OpenMP threads"). Returns ``n``.
     """
     global _threads_configured
     if n is None:

@@ -4,7 +4,7 @@
 :func:`encode_spectra` computes the same map with a pixel's feature maps (8 × L1 and 16 × L2) kept in
 cache, for the places that encode whole images without gradients (the back-projected appearance
 targets at the start of stage 2 encode every pixel of every training view). GELU and its vectorised erf
-are :mod:`brfgs.spectral.fast_decode`'s. Results equal the reference within float rounding
+are :mod:`brfgs.spectral.fast_math`'s. Results equal the reference within float rounding
 (tests/test_fast_decode.py).
 """
 
@@ -15,7 +15,9 @@ import torch
 from numba import njit, prange
 
 from brfgs.spectral.autoencoder import SpectralAutoencoder
-from brfgs.spectral.fast_decode import _FM, _FUSED, _gelu, _sync_threads
+from brfgs.spectral.fast_decode import _FUSED, _sync_threads
+from brfgs.spectral.fast_math import FASTMATH_FLAGS as _FM
+from brfgs.spectral.fast_math import gelu as _gelu
 
 __all__ = ["encode_spectra"]
 
