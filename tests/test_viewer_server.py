@@ -5,6 +5,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 
@@ -66,6 +67,9 @@ def test_command_serves_the_page_and_prints_the_url(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "brfgs", "view", str(model.parent), "--port", str(port),
                              "--seconds", "30"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # the command's output
+    reader.start()
     try:
         t_end, html = time.monotonic() + 60, None
         while html is None and time.monotonic() < t_end:
@@ -74,7 +78,11 @@ def test_command_serves_the_page_and_prints_the_url(tmp_path):
             except OSError:
                 time.sleep(0.3)
         assert html is not None and "<html" in html.lower()
+        while not any("ssh -L" in line for line in lines) and time.monotonic() < t_end:
+            time.sleep(0.2)          # the page is served before the command has printed its URL line
     finally:
         proc.terminate()
-        out = proc.communicate(timeout=20)[0]
+        proc.wait(timeout=20)
+        reader.join(timeout=20)
+    out = "".join(lines)
     assert f"http://localhost:{port}" in out and "ssh -L" in out
