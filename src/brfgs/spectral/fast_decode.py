@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from brfgs.spectral.autoencoder import SpectralAutoencoder
-from brfgs.spectral.lane_kernels import decode_bwd, decode_fwd, slp_vectorised
+from brfgs.spectral.lane_kernels import decode_bwd, decode_fwd, run_vectorised
 
 __all__ = ["DecoderPlan", "fast_decode", "can_fast_decode", "reference_decoding"]
 
@@ -89,8 +89,8 @@ class _FastDecode(torch.autograd.Function):
         zc = z.detach().contiguous()
         out = torch.empty(zc.shape[0], plan.n_bands, dtype=zc.dtype)
         _sync_threads()
-        with slp_vectorised():
-            decode_fwd(zc.numpy(), *plan.args(), plan.b2, plan.wlin, plan.blin, plan.std, plan.mean, out.numpy())
+        run_vectorised(decode_fwd, zc.numpy(), *plan.args(), plan.b2, plan.wlin, plan.blin, plan.std, plan.mean,
+                       out.numpy())
         ctx.save_for_backward(zc)
         ctx.plan = plan
         return out
@@ -101,8 +101,8 @@ class _FastDecode(torch.autograd.Function):
         plan = ctx.plan
         g_z = torch.empty_like(zc)
         _sync_threads()
-        with slp_vectorised():                              # the forward's pre-activations are recomputed
-            decode_bwd(zc.numpy(), g_out.contiguous().numpy(), *plan.args(), plan.wlin, plan.std, g_z.numpy())
+        run_vectorised(decode_bwd, zc.numpy(), g_out.contiguous().numpy(), *plan.args(), plan.wlin, plan.std,
+                       g_z.numpy())                        # the forward's pre-activations are recomputed
         return g_z, None
 
 

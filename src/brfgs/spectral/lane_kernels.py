@@ -5,7 +5,7 @@ held in registers, and every stored feature map is [channel, position, 16 pixels
 the decoder then reads one contiguous 16-float row and one scalar weight, so LLVM's SLP vectoriser turns
 the tuple arithmetic into 512-bit (or 2 × 256-bit) FMAs with the weight broadcast, and GELU's rational
 erf runs on 16 pixels per instruction. The kernels must be compiled with the SLP vectoriser on, which
-numba leaves off by default: call them through :func:`slp_vectorised`.
+numba leaves off by default: call them through :func:`run_vectorised`.
 
 Forward (:func:`decode_fwd`): Linear d → c2·L2, GELU, ConvTranspose1d(c2 → c1, k4, s2, p1), GELU,
 ConvTranspose1d(c1 → 1, k4, s2, p1), plus the linear path Linear d → B, then the band de-standardisation.
@@ -29,7 +29,7 @@ from numba import njit, prange
 
 from brfgs.spectral.fast_math import FASTMATH_FLAGS, gelu, gelu_grad
 
-__all__ = ["LANES", "decode_fwd", "decode_bwd", "slp_vectorised"]
+__all__ = ["LANES", "decode_fwd", "decode_bwd", "slp_vectorised", "run_vectorised"]
 
 LANES = 16  # pixels per group: one 512-bit vector of float32
 _FM = FASTMATH_FLAGS - {"reassoc"}  # no reassociation: SLP packs the lanes, never a reduction's terms
@@ -47,6 +47,21 @@ def slp_vectorised():
             yield
         finally:
             numba_config.SLP_VECTORIZE = prev
+
+
+_READY: set = set()  # (kernel, latent dtype) already compiled or loaded with SLP on in this process
+
+
+def run_vectorised(kernel, *args) -> None:
+    """``kernel(*args)``; its first call for a latent dtype (args[0]) runs inside :func:`slp_vectorised`,
+    where numba compiles it or loads it from its cache; later calls run without the lock."""
+    key = (kernel, args[0].dtype)
+    if key in _READY:
+        kernel(*args)
+        return
+    with slp_vectorised():
+        kernel(*args)
+    _READY.add(key)
 
 
 # ---- 16-lane values: tuples of one value per pixel of the group ----------------------------------------
@@ -79,6 +94,13 @@ def _mul_gelu_grad(a, x, i, j):
             a[9] * gelu_grad(x[i, j, 9]), a[10] * gelu_grad(x[i, j, 10]), a[11] * gelu_grad(x[i, j, 11]),
             a[12] * gelu_grad(x[i, j, 12]), a[13] * gelu_grad(x[i, j, 13]), a[14] * gelu_grad(x[i, j, 14]),
             a[15] * gelu_grad(x[i, j, 15]))
+
+
+@njit(**_LANE)
+def _load(x, i, j):
+    """x[i, j, :16] as a 16-lane value."""
+    return (x[i, j, 0], x[i, j, 1], x[i, j, 2], x[i, j, 3], x[i, j, 4], x[i, j, 5], x[i, j, 6], x[i, j, 7],
+            x[i, j, 8], x[i, j, 9], x[i, j, 10], x[i, j, 11], x[i, j, 12], x[i, j, 13], x[i, j, 14], x[i, j, 15])
 
 
 @njit(**_LANE)
@@ -127,25 +149,33 @@ def _hidden(zt, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2):
             _store(h2, co, 2 * j + 2, _gelu16(q))
 
 
+@njit(**_LANE)
+def _group_hidden(z, n0, cnt, wfc, bfc, w1, b1):
+    """The latents zt [1, d, 16] of pixels n0 … n0 + cnt − 1 and their hidden layers (see _hidden)."""
+    d, m1 = wfc.shape
+    c2, c1 = w1.shape[2], w1.shape[3]
+    l2 = m1 // c2
+    zt = np.empty((1, d, LANES), z.dtype)
+    a1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
+    h1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
+    a2e = np.empty((c1, l2, LANES), z.dtype)
+    a2o = np.empty((c1, l2, LANES), z.dtype)
+    h2 = np.zeros((c1, 2 * l2 + 2, LANES), z.dtype)
+    _load_group(z, n0, cnt, zt)
+    _hidden(zt, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
+    return zt, a1, h1, a2e, a2o, h2
+
+
 @njit(**_KERNEL)
 def decode_fwd(z, wfc, bfc, w1, b1, w2, b2, wlin, blin, std, mean, out):
     """out [N, B] = decode(z [N, d]) (module docstring); out's rows past B in 4·L2 are never written."""
     n_pix, n_bands = out.shape
-    d, m1 = wfc.shape
-    c2, c1 = w1.shape[2], w1.shape[3]
-    l2 = m1 // c2
+    d, c1 = wfc.shape[0], w1.shape[3]
     for g in prange((n_pix + LANES - 1) // LANES):
-        zt = np.empty((1, d, LANES), z.dtype)
-        a1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
-        h1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
-        a2e = np.empty((c1, l2, LANES), z.dtype)
-        a2o = np.empty((c1, l2, LANES), z.dtype)
-        h2 = np.zeros((c1, 2 * l2 + 2, LANES), z.dtype)
-        o = np.empty((1, n_bands + 1, LANES), z.dtype)
         n0 = g * LANES
         cnt = min(LANES, n_pix - n0)
-        _load_group(z, n0, cnt, zt)
-        _hidden(zt, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
+        zt, _, _, _, _, h2 = _group_hidden(z, n0, cnt, wfc, bfc, w1, b1)
+        o = np.empty((1, n_bands + 1, LANES), z.dtype)
         for j in range((n_bands + 1) // 2):                   # outputs 2j (e) and 2j + 1 (q)
             y0, y1 = 2 * j, min(2 * j + 1, n_bands - 1)      # an odd B's last q lands in the spare row
             e = _fill(b2 + blin[y0])
@@ -172,20 +202,13 @@ def decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z):
     c2, c1 = w1.shape[2], w1.shape[3]
     l2 = m1 // c2
     for g in prange((n_pix + LANES - 1) // LANES):
-        zt = np.empty((1, d, LANES), z.dtype)
-        a1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
-        h1 = np.zeros((c2, l2 + 2, LANES), z.dtype)
-        a2e = np.empty((c1, l2, LANES), z.dtype)
-        a2o = np.empty((c1, l2, LANES), z.dtype)
-        h2 = np.zeros((c1, 2 * l2 + 2, LANES), z.dtype)
+        n0 = g * LANES
+        cnt = min(LANES, n_pix - n0)
+        zt, a1, h1, a2e, a2o, h2 = _group_hidden(z, n0, cnt, wfc, bfc, w1, b1)
         gt = np.zeros((1, 4 * l2 + 4, LANES), z.dtype)      # ∂L/∂(standardised output y) at y + 2
         de = np.zeros((c1, l2 + 2, LANES), z.dtype)          # ∂L/∂a2e at j + 1 (zero at both ends)
         do = np.zeros((c1, l2 + 2, LANES), z.dtype)
         gz = np.empty((1, d, LANES), z.dtype)
-        n0 = g * LANES
-        cnt = min(LANES, n_pix - n0)
-        _load_group(z, n0, cnt, zt)
-        _hidden(zt, wfc, bfc, w1, b1, a1, h1, a2e, a2o, h2)
         for p in range(cnt):
             for y in range(n_bands):
                 gt[0, y + 2, p] = g_out[n0 + p, y] * std[y]
@@ -196,10 +219,8 @@ def decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z):
             _store(gz, 0, k, a)
         _up2_transposed(w2, gt, a2e, a2o, de, do)
         _up1_transposed(w1, de, do, a1, h1)                   # h1 becomes ∂L/∂a1 (position + 1)
-        for k in range(d):
-            a = (gz[0, k, 0], gz[0, k, 1], gz[0, k, 2], gz[0, k, 3], gz[0, k, 4], gz[0, k, 5], gz[0, k, 6],
-                 gz[0, k, 7], gz[0, k, 8], gz[0, k, 9], gz[0, k, 10], gz[0, k, 11], gz[0, k, 12], gz[0, k, 13],
-                 gz[0, k, 14], gz[0, k, 15])
+        for k in range(d):                                    # the fully connected layer
+            a = _load(gz, 0, k)
             for ci in range(c2):
                 for j in range(l2):
                     a = _fma(a, wfc[k, ci * l2 + j], h1, ci, j + 1)
@@ -211,15 +232,15 @@ def decode_bwd(z, g_out, wfc, bfc, w1, b1, w2, wlin, std, g_z):
 
 @njit(**_LANE)
 def _up2_transposed(w2, gt, a2e, a2o, de, do):
-    """de/do [c1, L2 + 2, 16] = ∂L/∂a2 (even/odd) from gt (∂L/∂ output y at y + 2): input position s of the
-    second transposed convolution feeds outputs 2s − 1 (tap 0 of odd output s − 1)... as the forward reads:
-    output 2j ← h2[j − 1]·w_e0 + h2[j]·w_e1, output 2j + 1 ← h2[j]·w_o0 + h2[j + 1]·w_o1."""
+    """de/do [c1, L2 + 2, 16] = ∂L/∂a2 (even/odd, at j + 1) from gt (∂L/∂ output y at y + 2). The forward
+    reads output 2j ← h2[j − 1]·w_e0 + h2[j]·w_e1 and output 2j + 1 ← h2[j]·w_o0 + h2[j + 1]·w_o1, so h2
+    position s feeds outputs 2s + 2 (w_e0), 2s (w_e1), 2s + 1 (w_o0) and 2s − 1 (w_o1)."""
     c1, l2 = a2e.shape[0], a2e.shape[1]
     for ci in range(c1):
         we0, we1, wo0, wo1 = w2[0, 0, ci], w2[0, 1, ci], w2[1, 0, ci], w2[1, 1, ci]
         for j in range(l2):
             for par in range(2):
-                s = 2 * j + par                               # h2 position s feeds outputs 2(s+1), 2s, 2s+1, 2(s−1)+1
+                s = 2 * j + par
                 a = _fill(gt[0, 0, 0] * 0)
                 a = _fma(a, we0, gt, 0, 2 * s + 4)            # output 2(s + 1) reads h2[s] with w_e0
                 a = _fma(a, we1, gt, 0, 2 * s + 2)            # output 2s reads h2[s] with w_e1
