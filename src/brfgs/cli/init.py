@@ -22,7 +22,8 @@ REFINEMENT_HELP = ("SfM: retriangulate and finish with a global bundle adjustmen
 
 def init_cmd(
     scene: Path = opt.SceneArg,
-    out: Path = typer.Argument(..., help="Output folder (points.ply, cameras.json, init_report.json/.md, bands.json).",
+    out: Path = typer.Argument(..., help="Output folder (points.ply, tracks.npz, cameras.json, init_report.json/.md, "
+                               "bands.json, sparse/0).",
                                show_default=False),
     poses: str = typer.Option("auto", "--poses", "-p",
                               help="sfm: COLMAP incremental SfM aligned to ENU; known: triangulate with the poses "
@@ -85,7 +86,7 @@ def init_cmd(
                                                "matching and verification on the same views; see definitions")
     write_outputs(out, sc, res, selection)
     _echo_report(res.report, rows)
-    typer.echo(f"\nwrote {out}/points.ply, cameras.json, init_report.json, init_report.md")
+    typer.echo(f"\nwrote {out}/points.ply, tracks.npz, cameras.json, init_report.json, init_report.md")
 
 
 def _given_bands(text: str, sc):

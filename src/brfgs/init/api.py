@@ -89,6 +89,8 @@ class InitResult:
     error_px: np.ndarray        # [P] mean reprojection error of each point
     band_indices: list[int]
     report: dict = field(default_factory=dict)
+    obs_frame: np.ndarray | None = None     # [O] frame of each observation (the points' tracks)
+    obs_point: np.ndarray | None = None     # [O] point of each observation
 
 
 def _frames_have_poses(scene) -> bool:
@@ -301,7 +303,7 @@ def initialize(scene, band_indices, poses: str = "auto", out_dir: str | Path | N
         report = _report(scene, config, poses, bands, rec, geometry_metrics(feats, stats), factor, timings,
                          selection)
         result = InitResult(rec.points, colors, rec.c2w, rec.registered, arr.track_len, rec.point_err, bands,
-                            report)
+                            report, arr.obs_frame, arr.obs_point)
         if out_dir is not None:
             write_outputs(Path(out_dir), scene, result, selection)
         return result

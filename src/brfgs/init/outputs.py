@@ -10,7 +10,8 @@ from plyfile import PlyData, PlyElement
 
 from brfgs.data import atomic
 
-__all__ = ["DEFINITIONS", "write_points_ply", "write_outputs", "report_markdown", "strategies_table",
+__all__ = ["DEFINITIONS", "write_points_ply", "write_outputs", "write_tracks", "read_tracks", "report_markdown",
+           "strategies_table",
            "fmt_or_na"]
 
 # The report's definitions of its numbers (init_report.json "definitions", init_report.md).
@@ -63,12 +64,15 @@ def write_points_ply(path: Path, points, colors, wavelengths_nm, band_indices, t
 
 
 def write_outputs(out: Path, scene, res, selection=None) -> None:
-    """OUT/points.ply, cameras.json, sparse/0 (the cameras and points as a COLMAP model),
-    init_report.{json,md} and (with ``selection``) bands.json of an :class:`brfgs.init.api.InitResult`."""
+    """OUT/points.ply, tracks.npz (each observation's frame and point index, when known), cameras.json,
+    sparse/0 (the cameras and points as a COLMAP model), init_report.{json,md} and (with
+    ``selection``) bands.json of an :class:`brfgs.init.api.InitResult`."""
     out.mkdir(parents=True, exist_ok=True)
     wl = [float(scene.wavelengths_nm[i]) for i in res.band_indices]
     write_points_ply(out / "points.ply", res.points, res.colors, wl, res.band_indices, res.track_length,
                      res.error_px)
+    if res.obs_frame is not None:
+        write_tracks(out / "tracks.npz", res.obs_frame, res.obs_point, [f.name for f in scene.frames])
     intr = scene.intrinsics
     cams = {"convention": "nerfstudio transform_matrix: OpenGL camera-to-world, ENU metres",
             "poses": res.report.get("poses"),
@@ -84,6 +88,21 @@ def write_outputs(out: Path, scene, res, selection=None) -> None:
     atomic.write_text(out / "init_report.md", report_markdown(res.report))
     if selection is not None:
         atomic.write_json(out / "bands.json", selection.to_json())
+
+
+def write_tracks(path: Path, obs_frame, obs_point, frame_names: list[str]) -> None:
+    """NPZ of the sparse points' tracks: ``obs_frame`` [O] (index into ``frame_names``), ``obs_point``
+    [O] (row of points.ply) and ``frame_names`` [F]."""
+    with atomic.atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, obs_frame=np.asarray(obs_frame, np.int32), obs_point=np.asarray(obs_point, np.int32),
+                                frame_names=np.asarray(frame_names, dtype=str))
+
+
+def read_tracks(path: Path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(obs_frame [O], obs_point [O], frame_names) of :func:`write_tracks`."""
+    with np.load(path, allow_pickle=False) as z:
+        return z["obs_frame"].astype(np.int64), z["obs_point"].astype(np.int64), [str(n) for n in z["frame_names"]]
 
 
 def fmt_or_na(x, spec=".3g") -> str:

@@ -62,7 +62,8 @@ class TrainConfig:
     ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
-    stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
+    stage1_steps: int = _opt(6000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps (6000: "
+                             "+0.72 dB at 64², +0.44 dB at 128² over 3000 on validation views; docs/results.md, S12).")
     stage2_steps: int = _opt(1500, "Stage-2 (BRDF) steps.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
@@ -77,6 +78,9 @@ class TrainConfig:
                                "showing through semi-transparent ground; 0 = off).")
     lambda_depth_smooth: float = _opt(50.0, "Weight of the edge-aware second-order smoothness of the rendered inverse "
                                       "depth while geometry trains (0 = off).")
+    lambda_sparse_depth: float = _opt(0.0, "Weight of the sparse-depth loss while geometry trains: the rendered depth "
+                                      "at each sparse SfM point a training view observed, against the point's depth "
+                                      "(relative L1; DS-NeRF-style; 0 = off).")
     learn_normals: bool = _opt(True, "Learn per-Gaussian shading normals in stage 2, or use the smallest axis (paper).",
                                "--learn-normals/--geometric-normals")
     lambda_normal_smooth: float = _opt(0.1, "Weight of the stage-2 smoothness loss of the learned normals over 8 "
@@ -115,7 +119,8 @@ class TrainConfig:
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
-    max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
+    max_gaussians_per_px: float = _opt(6.0, "Cap densification at this many Gaussians per image pixel (0 = no cap; "
+                                       "6: +0.84 dB at 64² over 3 on validation views; docs/results.md, S12).")
     densify: DensifyConfig = _opt(DensifyConfig(), "Adaptive density control (brfgs.model.densify).")
     patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
@@ -157,13 +162,15 @@ class TrainConfig:
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
-                   "lambda_alpha")
+                   "lambda_alpha", "lambda_sparse_depth")
         for name in lambdas:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
         for f in fields(self):
             if f.name.startswith("lr_") and not getattr(self, f.name) > 0:
                 raise UserError(f"{f.name} must be > 0, got {getattr(self, f.name)}", field=f.name)
+        if self.densify.mode not in ("adc", "mcmc"):
+            raise UserError(f"densify mode must be adc or mcmc, got {self.densify.mode!r}", field="densify.mode")
         if not 0 <= self.normal_start <= 1:
             raise UserError(f"normal_start must be in [0, 1], got {self.normal_start}", field="normal_start")
         if not 0 <= int(self.stage1_sh_degree) <= 3:
@@ -268,8 +275,30 @@ ADDITIONS: dict[str, Addition] = {
                              "each Gaussian and blending spectra (eq. 13): d instead of B channels rasterized"),
 }
 
+
+
+def merge_options(*changes: dict) -> dict:
+    """Option changes combined left to right; ``densify`` dicts are merged field by field."""
+    out: dict = {}
+    for ch in changes:
+        for k, v in ch.items():
+            if k == "densify" and isinstance(v, dict) and isinstance(out.get(k), dict):
+                out[k] = {**out[k], **v}
+            else:
+                out[k] = dict(v) if isinstance(v, dict) else v
+    return out
+
+
+def with_options(cfg: "TrainConfig", changes: dict) -> "TrainConfig":
+    """``cfg`` with ``changes`` (a ``densify`` dict changes only the fields it names)."""
+    changes = dict(changes)
+    if isinstance(changes.get("densify"), dict):
+        changes["densify"] = replace(cfg.densify, **changes["densify"])
+    return replace(cfg, **changes)
+
+
 # The published method: every addition off (paper sections 3.1-3.3).
-PAPER_METHOD: dict = {k: v for a in ADDITIONS.values() for k, v in a.paper.items()}
+PAPER_METHOD: dict = merge_options(*(a.paper for a in ADDITIONS.values()))
 
 # The paper's GPU-scale schedule (3DGS's 30k steps per stage, whole images, no Gaussian cap).
 PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000,
@@ -281,7 +310,7 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {
     "fast": {},
-    "paper": {**PAPER_SCHEDULE, **PAPER_METHOD},
+    "paper": merge_options(PAPER_SCHEDULE, PAPER_METHOD),
     "paper-fast": dict(PAPER_METHOD),
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
                  init_fill_points=500,
@@ -297,8 +326,5 @@ def preset(name: str, **overrides) -> TrainConfig:
         raise UserError(f"unknown preset {name!r}; choose {', '.join(PRESETS)}", field="preset")
     cfg = TrainConfig(preset=name)
     for changes in (PRESETS[name], overrides):
-        changes = dict(changes)
-        if isinstance(changes.get("densify"), dict):
-            changes["densify"] = replace(cfg.densify, **changes["densify"])
-        cfg = replace(cfg, **changes)
+        cfg = with_options(cfg, changes)
     return cfg.validate()

@@ -22,6 +22,7 @@ from brfgs.model.features import NeuralHead, uncentre
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.train.config import TrainConfig
 from brfgs.train.phases import Phase
+from brfgs.train.sparse_depth import SparseDepth
 
 # meta keys that describe the run's set-up (carried from checkpoint to checkpoint)
 SETUP_KEYS = ("scene", "bands", "stage1_bands", "cir_indices", "cir_scale", "extent_m", "autoencoder_report",
@@ -55,6 +56,7 @@ class TrainState:
         self.meta: dict = {}                        # set-up facts (SETUP_KEYS)
         self.timings: dict[str, float] = {}
         self._cameras: list[Camera] | None = None
+        self.sparse_depth: SparseDepth | None = None  # the SfM tracks (option lambda_sparse_depth)
 
     # -- derived -----------------------------------------------------------------------
     @property

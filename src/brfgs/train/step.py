@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from brfgs.model.camera import Camera
+from brfgs.model.mcmc import mcmc_regulariser
 from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
 from brfgs.model.rendering import (
     composite_background, decode_image, frustum_subset, rasterize_features, rasterize_splats,
@@ -22,6 +23,7 @@ from brfgs.train.images import TrainImages
 from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
                                 masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
+from brfgs.train.sparse_depth import sparse_depth_loss
 from brfgs.train.state import TrainState, head_config
 
 
@@ -104,10 +106,14 @@ def _geometry_channels(state: TrainState, cfg: TrainConfig, cam: Camera) -> list
 
 def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput, n_feat: int, batch: Batch,
                          use_priors: bool) -> Tensor | None:
-    """Flatness loss plus, when ``use_priors``, the depth-normal, depth-concentration and depth
-    smoothness priors on the rendered geometry channels (None when all are off)."""
+    """Flatness loss plus, when ``use_priors``, the depth-normal, depth-concentration, depth
+    smoothness and sparse-depth priors on the rendered geometry channels (None when all are off)."""
     c = cfg
     greg = c.lambda_flat * flatten_loss(state.gaussians["log_scales"]) if c.lambda_flat > 0 else None
+    if c.densify.mode == "mcmc":
+        d = c.densify
+        prior = mcmc_regulariser(state.gaussians, d.mcmc_opacity_reg, d.mcmc_scale_reg, state.meta["extent_m"])
+        greg = prior if greg is None else greg + prior
     if c.lambda_alpha > 0:  # coverage: 1 - alpha over the valid pixels
         cover = c.lambda_alpha * coverage_loss(out.alpha, batch.valid)
         greg = cover if greg is None else greg + cover
@@ -121,6 +127,9 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
         terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
     if c.lambda_depth_smooth > 0:
         terms.append(c.lambda_depth_smooth * depth_smoothness_loss(geo[..., 0], out.alpha, batch.target, batch.valid))
+    sparse = state.sparse_depth.targets(batch.index, batch.cam) if c.lambda_sparse_depth > 0 and state.sparse_depth else None
+    if sparse is not None:
+        terms.append(c.lambda_sparse_depth * sparse_depth_loss(geo[..., 0], out.alpha, *sparse))
     if terms:
         greg = sum(terms) if greg is None else greg + sum(terms)
     return greg
@@ -204,7 +213,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     latents decoded per pixel.
     """
     c = cfg
-    surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0
+    surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0 or c.lambda_sparse_depth > 0
     use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
     feats = _features(state, cfg, phase, batch.cam, batch.index)
     by_gaussian = c.decode == "gaussian" and phase in (Phase.STAGE2, Phase.JOINT)

@@ -14,6 +14,7 @@ import torch
 
 from brfgs.model import DensifyConfig, DensifyState, GaussianModel, NamedAdam, refine, reset_opacity
 from brfgs.model.densify import accumulate
+from brfgs.model.mcmc import add_gaussians, perturb_means, relocate_dead
 from brfgs.render import RenderOutput
 
 
@@ -51,13 +52,27 @@ class DensifyStrategy:
 
     def after_step(self, model: GaussianModel, opt: NamedAdam, state: DensifyState, step: int, steps: int,
                    gen: torch.Generator) -> None:
-        """Refine (clone, split, prune) or reset opacities when the schedule says so."""
+        """Refine (clone, split, prune) or reset opacities when the schedule says so; in mode
+        "mcmc", relocate and grow instead, and add the exploration noise every step."""
         d = self.cfg
         stop = min(d.refine_stop, int(0.75 * steps))
-        if d.refine_start < step <= stop and step % d.refine_every == 0:
-            cap = d.max_gaussians
-            if self.max_gaussians_per_px > 0:
-                cap = min(cap, int(self.max_gaussians_per_px * self.width * self.height))
-            refine(model, opt, state, replace(d, max_gaussians=cap), self.extent_m, gen)
+        refine_now = d.refine_start < step <= stop and step % d.refine_every == 0
+        if d.mode == "mcmc":
+            if refine_now:
+                relocate_dead(model, opt, d.prune_opacity, gen)
+                add_gaussians(model, opt, min(self.cap(), int((1 + d.mcmc_growth) * model.n)) - model.n, gen)
+                state.grad2d, state.count = torch.zeros(model.n), torch.zeros(model.n)
+            if step < stop:
+                perturb_means(model, opt.lrs.get("means", 0.0), self.extent_m, d.mcmc_noise_lr, gen)
+            return
+        if refine_now:
+            refine(model, opt, state, replace(d, max_gaussians=self.cap()), self.extent_m, gen)
         if d.reset_every > 0 and step % d.reset_every == 0 and step < stop:
             reset_opacity(model, opt, state, d)
+
+    def cap(self) -> int:
+        """The most Gaussians allowed: max_gaussians, or fewer by the per-pixel cap."""
+        cap = self.cfg.max_gaussians
+        if self.max_gaussians_per_px > 0:
+            cap = min(cap, int(self.max_gaussians_per_px * self.width * self.height))
+        return cap

@@ -43,6 +43,7 @@ from brfgs.train.phases import Phase, next_phase, plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.schedule import learning_rates
 from brfgs.train.setup import init_head, run_setup
+from brfgs.train.sparse_depth import load_sparse_depth
 from brfgs.train.state import TrainState
 from brfgs.train.step import forward, make_batch, neighbours, pick_view
 from brfgs.train.strategy import DensifyStrategy
@@ -103,6 +104,9 @@ class Trainer:
             self._on_main(setup)
             if not self.comm.is_main:  # the other ranks start from rank 0's first checkpoint
                 self._resume()
+        if self.cfg.lambda_sparse_depth > 0 and st.phase.trains_geometry:
+            st.sparse_depth = load_sparse_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
+                                                self.scene.train_indices)
         self._write_status("running")
         try:
             with self._steps_finish_on_ctrl_c():
