@@ -12,7 +12,7 @@ class DensifyConfig:
     option ``--densify-<field>``."""
 
     refine_start: int = field(default=300, metadata={"help": "First step that may clone, split or prune."})
-    refine_stop: int = field(default=4500, metadata={"help": "Last step that may (at most 3/4 of the phase)."})
+    refine_stop: int = field(default=2500, metadata={"help": "Last step that may (at most 3/4 of the phase)."})
     refine_every: int = field(default=100, metadata={"help": "Steps between refinements."})
     reset_every: int = field(default=1500, metadata={"help": "Steps between opacity resets (0 = never)."})
     grow_grad2d: float = field(default=0.0002, metadata={"help": "Mean screen-space gradient (NDC) that grows a Gaussian."})

@@ -62,8 +62,7 @@ class TrainConfig:
     ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
-    stage1_steps: int = _opt(6000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps (6000: "
-                             "+0.72 dB at 64², +0.44 dB at 128² over 3000 on validation views; docs/results.md, S12).")
+    stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
     stage2_steps: int = _opt(1500, "Stage-2 (BRDF) steps.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
@@ -119,8 +118,7 @@ class TrainConfig:
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
-    max_gaussians_per_px: float = _opt(6.0, "Cap densification at this many Gaussians per image pixel (0 = no cap; "
-                                       "6: +0.84 dB at 64² over 3 on validation views; docs/results.md, S12).")
+    max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
     densify: DensifyConfig = _opt(DensifyConfig(), "Adaptive density control (brfgs.model.densify).")
     patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
