@@ -11,8 +11,7 @@ from plyfile import PlyData, PlyElement
 from brfgs.data import atomic
 
 __all__ = ["DEFINITIONS", "write_points_ply", "write_outputs", "write_tracks", "read_tracks", "report_markdown",
-           "strategies_table",
-           "fmt_or_na"]
+           "strategies_table", "fmt_or_na"]
 
 # The report's definitions of its numbers (init_report.json "definitions", init_report.md).
 DEFINITIONS = {

@@ -20,6 +20,7 @@ The optimiser moments of every row that was moved or re-weighted restart at zero
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import torch
 from torch import Tensor
@@ -31,7 +32,8 @@ from brfgs.render.geometry import quat_to_rotmat
 MAX_COPIES = 51  # a Gaussian drawn more often than this keeps the weights of 51 copies (as gsplat)
 
 
-def _binomial_table(n: int) -> Tensor:  # [n, n] float64, C(i, k)
+@lru_cache(maxsize=1)
+def _binomial_table(n: int) -> Tensor:  # [n, n] float64, C(i, k) (built once; callers must not write to it)
     return torch.tensor([[math.comb(i, k) for k in range(n)] for i in range(n)], dtype=torch.float64)
 
 

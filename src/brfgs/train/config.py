@@ -169,6 +169,9 @@ class TrainConfig:
                 raise UserError(f"{f.name} must be > 0, got {getattr(self, f.name)}", field=f.name)
         if self.densify.mode not in ("adc", "mcmc"):
             raise UserError(f"densify mode must be adc or mcmc, got {self.densify.mode!r}", field="densify.mode")
+        for name in ("mcmc_growth", "mcmc_noise_lr", "mcmc_opacity_reg", "mcmc_scale_reg"):
+            if getattr(self.densify, name) < 0:
+                raise UserError(f"densify {name} must be >= 0, got {getattr(self.densify, name)}", field=f"densify.{name}")
         if not 0 <= self.normal_start <= 1:
             raise UserError(f"normal_start must be in [0, 1], got {self.normal_start}", field="normal_start")
         if not 0 <= int(self.stage1_sh_degree) <= 3:
@@ -274,19 +277,6 @@ ADDITIONS: dict[str, Addition] = {
 }
 
 
-
-def merge_options(*changes: dict) -> dict:
-    """Option changes combined left to right; ``densify`` dicts are merged field by field."""
-    out: dict = {}
-    for ch in changes:
-        for k, v in ch.items():
-            if k == "densify" and isinstance(v, dict) and isinstance(out.get(k), dict):
-                out[k] = {**out[k], **v}
-            else:
-                out[k] = dict(v) if isinstance(v, dict) else v
-    return out
-
-
 def with_options(cfg: "TrainConfig", changes: dict) -> "TrainConfig":
     """``cfg`` with ``changes`` (a ``densify`` dict changes only the fields it names)."""
     changes = dict(changes)
@@ -296,7 +286,7 @@ def with_options(cfg: "TrainConfig", changes: dict) -> "TrainConfig":
 
 
 # The published method: every addition off (paper sections 3.1-3.3).
-PAPER_METHOD: dict = merge_options(*(a.paper for a in ADDITIONS.values()))
+PAPER_METHOD: dict = {k: v for a in ADDITIONS.values() for k, v in a.paper.items()}
 
 # The paper's GPU-scale schedule (3DGS's 30k steps per stage, whole images, no Gaussian cap).
 PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000,
@@ -308,7 +298,7 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {
     "fast": {},
-    "paper": merge_options(PAPER_SCHEDULE, PAPER_METHOD),
+    "paper": {**PAPER_SCHEDULE, **PAPER_METHOD},
     "paper-fast": dict(PAPER_METHOD),
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
                  init_fill_points=500,

@@ -11,6 +11,8 @@ a view that did not match the point may not see it (occlusion).
 
 from __future__ import annotations
 
+import zipfile
+
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -112,7 +114,7 @@ def load_sparse_depth(init_dir: Path, frame_names: list[str], train_indices: lis
         v = PlyData.read(str(ply_path))["vertex"]
         points = np.stack([np.asarray(v[k], np.float64) for k in ("x", "y", "z")], 1)  # [P, 3]
         obs_frame, obs_point, names = read_tracks(tracks_path)
-    except (OSError, ValueError, KeyError) as exc:
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
         raise UserError(f"cannot read the initialisation's sparse points or tracks: {exc}", file=tracks_path,
                         field="obs_frame") from None
     if obs_point.size and (obs_point.max() >= len(points) or obs_point.min() < 0):

@@ -34,7 +34,7 @@ from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train import TrainConfig, train
-from brfgs.train.config import ADDITIONS, PAPER_METHOD, with_options
+from brfgs.train.config import ADDITIONS, PAPER_METHOD
 from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
 STUDIES = ("kernels", "training", "bands", "baselines", "additions")
@@ -68,13 +68,13 @@ def _runs(study: str, base: TrainConfig) -> list[tuple[str, str, TrainConfig, st
 
 def _addition_runs(base: TrainConfig) -> list[tuple[str, str, TrainConfig, str | None]]:
     """The additions study: base, base minus each addition, the paper's method, paper plus each."""
-    paper = with_options(base, PAPER_METHOD)
+    paper = replace(base, **PAPER_METHOD)
     out = [("default", "brfgs (given options, every addition on)", base, None)]
     for name, a in ADDITIONS.items():
-        out.append((f"no_{name}", f"default without {name}", with_options(base, a.paper), "default" if a.stage == 2 else None))
+        out.append((f"no_{name}", f"default without {name}", replace(base, **a.paper), "default" if a.stage == 2 else None))
     out.append(("paper", "paper's method (every addition off)", paper, None))
     for name, a in ADDITIONS.items():
-        back = {k: getattr(base, k) for k in a.paper}  # a densify change brings back the base's densify options
+        back = {k: getattr(base, k) for k in a.paper}
         out.append((f"paper_{name}", f"paper + {name}", replace(paper, **back), "paper" if a.stage == 2 else None))
     # runs equal to another (an addition already off in the given options) are dropped
     seen, unique = {}, []
