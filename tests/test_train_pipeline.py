@@ -5,11 +5,13 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
+from brfgs.data import read_scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, render
 from brfgs.model.io import load
@@ -260,3 +262,41 @@ def test_mcmc_densification_and_sparse_depth_train_and_resume(scene, tmp_path):
     assert not bad, bad
     with pytest.raises(UserError, match="densify mode"):
         _cfg(densify=dict(mode="other"))
+
+
+def test_schedule_scales_with_training_views_and_resumes(scene, tmp_path):
+    """schedule_ref_views: stage-1 steps, the last densification step and the per-pixel cap grow by
+    n_train / ref (never shrink); config.json keeps the options as given, the model and run.json
+    the values used; a run interrupted beyond the unscaled step count resumes to the scaled end,
+    and its stage 1 seeds a --from-stage1 run."""
+    from brfgs.train.config import scaled_schedule
+
+    cfg = _cfg(stage1_steps=8, stage2_steps=4, schedule_ref_views=4, max_gaussians_per_px=2.0, checkpoint_every=1000,
+               densify=dict(refine_start=2, refine_stop=6, refine_every=2))
+    n_train = len(read_scene(scene).train_indices)
+    s = n_train / 4
+    eff = scaled_schedule(cfg, n_train)
+    assert (eff.stage1_steps, eff.densify.refine_stop) == (round(8 * s), round(6 * s))
+    assert eff.max_gaussians_per_px == pytest.approx(2.0 * s) and eff.schedule_ref_views == 0
+    assert scaled_schedule(eff, n_train) == eff  # applied once
+    assert scaled_schedule(cfg, 3) == replace(cfg, schedule_ref_views=0)  # fewer views: as given
+    assert scaled_schedule(replace(cfg, schedule_ref_views=0), 100) == replace(cfg, schedule_ref_views=0)
+
+    def stop(phase, step):
+        if (phase, step) == ("stage1", 10):  # beyond the 8 steps given
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, tmp_path / "a", cfg, progress=False, callback=stop, log=None)
+    path = train(scene, tmp_path / "a", cfg, progress=False, log=None)
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["stage1_steps"] == 8
+    run = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert run["schedule"]["n_train_views"] == n_train and run["schedule"]["stage1_steps"] == eff.stage1_steps
+    assert load(path)[1]["config"]["stage1_steps"] == eff.stage1_steps
+    log = (tmp_path / "a" / "train_log.csv").read_text().splitlines()
+    steps = [int(r.split(",")[1]) for r in log[1:] if r.startswith("stage1")]
+    assert max(steps) == eff.stage1_steps and len(steps) == len(set(steps))
+    train(scene, tmp_path / "sh", replace(cfg, variant="sh"), progress=False, log=None,
+          from_stage1=tmp_path / "a" / "checkpoints" / "stage1.safetensors")
+    with pytest.raises(UserError, match="schedule_ref_views"):
+        _cfg(schedule_ref_views=-1)

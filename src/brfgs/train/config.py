@@ -119,6 +119,11 @@ class TrainConfig:
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
     max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
+    schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --densify-refine-stop and "
+                                   "--max-gaussians-per-px are given for: with n > this many training views all three "
+                                   "are multiplied by n / this (the same passes over the views, the same Gaussians per "
+                                   "observed pixel); with fewer they stay as given. run.json records the values used. "
+                                   "0 = always as given (docs/results.md, Session 13).")
     densify: DensifyConfig = _opt(DensifyConfig(), "Adaptive density control (brfgs.model.densify).")
     patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
@@ -178,6 +183,8 @@ class TrainConfig:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
+        if self.schedule_ref_views < 0:
+            raise UserError(f"schedule_ref_views must be >= 0, got {self.schedule_ref_views}", field="schedule_ref_views")
         if self.views_per_step < 1:
             raise UserError(f"views_per_step must be >= 1, got {self.views_per_step}", field="views_per_step")
         if self.checkpoint_every < 1:
@@ -277,6 +284,20 @@ ADDITIONS: dict[str, Addition] = {
 }
 
 
+def scaled_schedule(cfg: "TrainConfig", n_train_views: int) -> "TrainConfig":
+    """The options a run on ``n_train_views`` training views trains with: stage1_steps,
+    densify.refine_stop and max_gaussians_per_px times s = max(1, n_train_views /
+    schedule_ref_views), and schedule_ref_views 0 (applied; the result is not scaled again).
+    ``cfg`` itself when schedule_ref_views is 0 (the values as given)."""
+    if cfg.schedule_ref_views <= 0:
+        return cfg
+    s = max(1.0, n_train_views / cfg.schedule_ref_views)
+    return replace(cfg, stage1_steps=int(round(cfg.stage1_steps * s)),
+                   max_gaussians_per_px=round(cfg.max_gaussians_per_px * s, 4),
+                   densify=replace(cfg.densify, refine_stop=int(round(cfg.densify.refine_stop * s))),
+                   schedule_ref_views=0)
+
+
 def with_options(cfg: "TrainConfig", changes: dict) -> "TrainConfig":
     """``cfg`` with ``changes`` (a ``densify`` dict changes only the fields it names)."""
     changes = dict(changes)
@@ -293,7 +314,8 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
                             stage2_steps=30_000,
                             densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
                                          max_gaussians=3_000_000),
-                            checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0)
+                            checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0,
+                            schedule_ref_views=0)
 
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {
@@ -303,7 +325,7 @@ PRESETS: dict[str, dict] = {
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
                  init_fill_points=500,
                  densify=dict(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000, max_gaussians=5000),
-                 checkpoint_every=10, log_every=1, backend="torch"),
+                 checkpoint_every=10, log_every=1, backend="torch", schedule_ref_views=0),
 }
 
 

@@ -35,7 +35,7 @@ from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
-from brfgs.train.config import TrainConfig
+from brfgs.train.config import TrainConfig, scaled_schedule
 from brfgs.train.distributed import Comm, check_identical, check_views_per_step, launch, reduce_gradients, shard
 from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
@@ -79,6 +79,7 @@ class Trainer:
         self._ctrl_c = False  # Ctrl-C seen by this process (see _steps_finish_on_ctrl_c)
         self._stop_requested = False  # ... by any rank, agreed at the end of the last step
         self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
+        self.schedule: dict | None = None  # the schedule scaled to the training views (set when the scene is read)
 
     # -------------------------------------------------------------------------------- entry
     def run(self) -> Path:
@@ -89,6 +90,7 @@ class Trainer:
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
                                 value_range=tuple(self.cfg.value_range), validation=self.cfg.validation,
                                 allow_outside_links=self.cfg.allow_outside_links)
+        self._scale_schedule()
         st = self.state
         t0 = time.perf_counter()
         if self.folder.resume_points():
@@ -123,6 +125,19 @@ class Trainer:
             self._write_status("finished")
         self.comm.barrier()
         return path
+
+    def _scale_schedule(self) -> None:
+        """Train with the schedule scaled to the number of training views (config.json keeps the
+        options as given; checkpoints, the model file and run.json hold the values used)."""
+        n_train = len(self.scene.train_indices)
+        given = self.cfg
+        self.cfg = scaled_schedule(given, n_train)
+        self.state.cfg = self.cfg
+        self.phases = plan(self.cfg.variant, self.cfg.joint, self.cfg.stage1_steps, self.cfg.stage2_steps)
+        self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
+                         "scale": self.cfg.stage1_steps / given.stage1_steps if given.stage1_steps else 1.0,
+                         "stage1_steps": self.cfg.stage1_steps, "refine_stop": self.cfg.densify.refine_stop,
+                         "max_gaussians_per_px": self.cfg.max_gaussians_per_px}
 
     def _run_phases(self) -> None:
         """Every phase left, each followed by its checkpoints and the next phase's set-up."""
@@ -257,7 +272,8 @@ class Trainer:
             return
         st = self.state
         self.folder.write_status({"status": status, "phase": st.phase.value, "step": st.step,
-                                  "config": self.cfg.to_dict(), "scene": str(self.scene_path.resolve()),
+                                  "config": self.cfg.to_dict(), "schedule": self.schedule,
+                                  "scene": str(self.scene_path.resolve()),
                                   "timings_s": st.timings,
                                   "n_gaussians": st.gaussians.n if st.gaussians is not None else None,
                                   "learned_irradiance_scale": self._learned_scales(),

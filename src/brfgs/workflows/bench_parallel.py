@@ -43,6 +43,7 @@ def _one_run(scene: Path, out: Path, cfg: TrainConfig, nproc: int) -> dict:
     res = evaluate_run(out, scene, write_images=False, progress=False)
     against = res["against"].get("truth") or res["against"]["observed"]
     return {"wall_s": wall, "timings_s": {k: run["timings_s"].get(k) for k in PHASES},
+            "steps": {"stage1": run["config"]["stage1_steps"], "stage2": run["config"]["stage2_steps"]},
             "allreduce_bytes_per_step": run.get("data_parallel", {}).get("allreduce_bytes_per_step", {}),
             "n_gaussians": run.get("n_gaussians"), "psnr": against["mean"]["psnr"], "sam": against["mean"]["sam"],
             "against": "truth" if "truth" in res["against"] else "observed"}
@@ -60,8 +61,8 @@ def _max_difference(a: Path, b: Path) -> float:
     return worst
 
 
-def _summary(runs: list[dict], cfg: TrainConfig) -> dict:
-    steps = {"stage1": cfg.stage1_steps, "stage2": cfg.stage2_steps}
+def _summary(runs: list[dict]) -> dict:
+    steps = runs[0]["steps"]  # the steps used (scaled to the training views)
     med = {k: statistics.median(r["timings_s"][k] for r in runs) for k in PHASES if runs[0]["timings_s"].get(k)}
     return {"median_phase_s": med, "median_wall_s": statistics.median(r["wall_s"] for r in runs),
             "ms_per_step": {k: 1e3 * med[k] / steps[k] for k in steps if k in med and steps[k]},
@@ -87,7 +88,7 @@ def bench_parallel(scene: str | Path, out: str | Path, cfg: TrainConfig, nprocs:
         for n in nprocs[1:]:
             diffs[n].append(_max_difference(out / f"n{nprocs[0]}_{r}" / "model.safetensors",
                                             out / f"n{n}_{r}" / "model.safetensors"))
-    summary = {str(n): _summary(runs[n], cfg) for n in nprocs}
+    summary = {str(n): _summary(runs[n]) for n in nprocs}
     base = summary[str(nprocs[0])]
     ratios = {str(n): {k: base["median_phase_s"][k] / v for k, v in summary[str(n)]["median_phase_s"].items()
                        if v and k in ("stage1", "stage2")} for n in nprocs[1:]}

@@ -40,9 +40,11 @@ def _one_run(scene: Path, out: Path, cfg: TrainConfig, reference: bool) -> dict:
         train(scene, out, cfg, overwrite=True, progress=False, log=lambda *a, **k: None)
         wall = time.perf_counter() - t0
         res = evaluate_run(out, scene, write_images=False, progress=False)
-    timings = json.loads((out / "run.json").read_text())["timings_s"]
+    run = json.loads((out / "run.json").read_text())
+    timings, used = run["timings_s"], run["config"]  # the steps used (scaled to the training views)
     against = res["against"].get("truth") or res["against"]["observed"]
     return {"wall_s": wall, "timings_s": {k: timings.get(k) for k in PHASES},
+            "steps": {"stage1": used["stage1_steps"], "stage2": used["stage2_steps"]},
             "psnr": against["mean"]["psnr"], "sam": against["mean"]["sam"],
             "against": "truth" if "truth" in res["against"] else "observed"}
 
@@ -66,9 +68,9 @@ def bench_train(scene: str | Path, out: str | Path, cfg: TrainConfig, repeats: i
     for r in range(repeats):
         for name in runs:
             runs[name].append(_one_run(scene, out / f"{name}_{r}", cfg, reference=name == "reference"))
-    steps = {"stage1": cfg.stage1_steps, "stage2": cfg.stage2_steps}
     summary = {}
     for name, rs in runs.items():
+        steps = rs[0]["steps"]
         med = {k: statistics.median(x["timings_s"][k] for x in rs) for k in PHASES if rs[0]["timings_s"][k] is not None}
         summary[name] = {"median_phase_s": med, "median_wall_s": statistics.median(x["wall_s"] for x in rs),
                          "ms_per_step": {k: 1000 * med[k] / steps[k] for k in steps if k in med and steps[k]},

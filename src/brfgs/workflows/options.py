@@ -14,7 +14,9 @@ class DemoConfig:
     views: int = field(default=25, metadata={"help": "Simulated views (13, 25, 37 or 49)."})
     bands: int = field(default=164, metadata={"help": "Simulated bands over 350-1000 nm."})
     spp: int = field(default=16, metadata={"help": "Simulation samples per pixel (a power of 4)."})
-    stage1_steps: Optional[int] = field(default=None, metadata={"help": "Override the fast preset's stage-1 steps."})
+    stage1_steps: Optional[int] = field(default=None, metadata={
+        "help": "Override the fast preset's stage-1 steps (given for 17 training views and scaled to the scene's "
+                "like the preset's: --schedule-ref-views of brfgs train)."})
     stage2_steps: Optional[int] = field(default=None, metadata={"help": "Override the fast preset's stage-2 steps."})
     threads: int = field(default=0, metadata={"help": "CPU threads (0 = all)."})
 
