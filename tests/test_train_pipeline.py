@@ -265,7 +265,7 @@ def test_mcmc_densification_and_sparse_depth_train_and_resume(scene, tmp_path):
 
 
 def test_schedule_scales_with_training_views_and_resumes(scene, tmp_path):
-    """schedule_ref_views: stage-1 steps, the last densification step and the per-pixel cap grow by
+    """schedule_ref_views: stage-1 and stage-2 steps, the last densification step and the per-pixel cap grow by
     n_train / ref (never shrink); config.json keeps the options as given, the model and run.json
     the values used; a run interrupted beyond the unscaled step count resumes to the scaled end,
     and its stage 1 seeds a --from-stage1 run."""
@@ -276,7 +276,7 @@ def test_schedule_scales_with_training_views_and_resumes(scene, tmp_path):
     n_train = len(read_scene(scene).train_indices)
     s = n_train / 4
     eff = scaled_schedule(cfg, n_train)
-    assert (eff.stage1_steps, eff.densify.refine_stop) == (round(8 * s), round(6 * s))
+    assert (eff.stage1_steps, eff.stage2_steps, eff.densify.refine_stop) == (round(8 * s), round(4 * s), round(6 * s))
     assert eff.max_gaussians_per_px == pytest.approx(2.0 * s) and eff.schedule_ref_views == 0
     assert scaled_schedule(eff, n_train) == eff  # applied once
     assert scaled_schedule(cfg, 3) == replace(cfg, schedule_ref_views=0)  # fewer views: as given
@@ -296,6 +296,8 @@ def test_schedule_scales_with_training_views_and_resumes(scene, tmp_path):
     log = (tmp_path / "a" / "train_log.csv").read_text().splitlines()
     steps = [int(r.split(",")[1]) for r in log[1:] if r.startswith("stage1")]
     assert max(steps) == eff.stage1_steps and len(steps) == len(set(steps))
+    steps2 = [int(r.split(",")[1]) for r in log[1:] if r.startswith("stage2")]
+    assert max(steps2) == eff.stage2_steps == run["schedule"]["stage2_steps"]
     train(scene, tmp_path / "sh", replace(cfg, variant="sh"), progress=False, log=None,
           from_stage1=tmp_path / "a" / "checkpoints" / "stage1.safetensors")
     with pytest.raises(UserError, match="schedule_ref_views"):

@@ -63,7 +63,7 @@ class TrainConfig:
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
     stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
-    stage2_steps: int = _opt(1500, "Stage-2 (BRDF) steps.")
+    stage2_steps: int = _opt(750, "Stage-2 (BRDF) steps (for 17 training views: see --schedule-ref-views).")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
     lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
@@ -119,8 +119,8 @@ class TrainConfig:
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
                                  "(0 = sparse points only, as 3DGS).")
     max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
-    schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --densify-refine-stop and "
-                                   "--max-gaussians-per-px are given for: with n > this many training views all three "
+    schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --stage2-steps, --densify-refine-stop and "
+                                   "--max-gaussians-per-px are given for: with n > this many training views all four "
                                    "are multiplied by n / this (the same passes over the views, the same Gaussians per "
                                    "observed pixel); with fewer they stay as given. run.json records the values used. "
                                    "0 = always as given (docs/results.md, Session 13).")
@@ -286,13 +286,13 @@ ADDITIONS: dict[str, Addition] = {
 
 def scaled_schedule(cfg: "TrainConfig", n_train_views: int) -> "TrainConfig":
     """The options a run on ``n_train_views`` training views trains with: stage1_steps,
-    densify.refine_stop and max_gaussians_per_px times s = max(1, n_train_views /
+    stage2_steps, densify.refine_stop and max_gaussians_per_px times s = max(1, n_train_views /
     schedule_ref_views), and schedule_ref_views 0 (applied; the result is not scaled again).
     ``cfg`` itself when schedule_ref_views is 0 (the values as given)."""
     if cfg.schedule_ref_views <= 0:
         return cfg
     s = max(1.0, n_train_views / cfg.schedule_ref_views)
-    return replace(cfg, stage1_steps=int(round(cfg.stage1_steps * s)),
+    return replace(cfg, stage1_steps=int(round(cfg.stage1_steps * s)), stage2_steps=int(round(cfg.stage2_steps * s)),
                    max_gaussians_per_px=round(cfg.max_gaussians_per_px * s, 4),
                    densify=replace(cfg.densify, refine_stop=int(round(cfg.densify.refine_stop * s))),
                    schedule_ref_views=0)

@@ -136,7 +136,8 @@ class Trainer:
         self.phases = plan(self.cfg.variant, self.cfg.joint, self.cfg.stage1_steps, self.cfg.stage2_steps)
         self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
                          "scale": self.cfg.stage1_steps / given.stage1_steps if given.stage1_steps else 1.0,
-                         "stage1_steps": self.cfg.stage1_steps, "refine_stop": self.cfg.densify.refine_stop,
+                         "stage1_steps": self.cfg.stage1_steps, "stage2_steps": self.cfg.stage2_steps,
+                         "refine_stop": self.cfg.densify.refine_stop,
                          "max_gaussians_per_px": self.cfg.max_gaussians_per_px}
 
     def _run_phases(self) -> None:

@@ -17,7 +17,8 @@ class DemoConfig:
     stage1_steps: Optional[int] = field(default=None, metadata={
         "help": "Override the fast preset's stage-1 steps (given for 17 training views and scaled to the scene's "
                 "like the preset's: --schedule-ref-views of brfgs train)."})
-    stage2_steps: Optional[int] = field(default=None, metadata={"help": "Override the fast preset's stage-2 steps."})
+    stage2_steps: Optional[int] = field(default=None, metadata={
+        "help": "Override the fast preset's stage-2 steps (given for 17 training views, scaled likewise)."})
     threads: int = field(default=0, metadata={"help": "CPU threads (0 = all)."})
 
 
