@@ -19,6 +19,7 @@ from brfgs.model.densify_config import DensifyConfig
 
 VARIANTS = ("brf", "sh", "neural", "cir")
 DECODE_ORDERS = ("pixel", "gaussian")
+INIT_FILLS = ("surface", "mvs")
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -80,6 +81,12 @@ class TrainConfig:
     lambda_sparse_depth: float = _opt(0.0, "Weight of the sparse-depth loss while geometry trains: the rendered depth "
                                       "at each sparse SfM point a training view observed, against the point's depth "
                                       "(relative L1; DS-NeRF-style; 0 = off).")
+    lambda_dense_depth: float = _opt(0.0, "Weight of the dense-depth loss while geometry trains: the rendered depth "
+                                     "against each training view's stereo depth map where stereo kept one (relative "
+                                     "L1; needs --init-fill mvs; 0 = off).")
+    lambda_multiview: float = _opt(0.0, "Weight of the multi-view photometric consistency loss while geometry "
+                                   "trains: patches carried into two neighbouring training views by the rendered "
+                                   "depth and normal must match their observed images (1 - NCC; PGSR-style; 0 = off).")
     learn_normals: bool = _opt(True, "Learn per-Gaussian shading normals in stage 2, or use the smallest axis (paper).",
                                "--learn-normals/--geometric-normals")
     lambda_normal_smooth: float = _opt(0.1, "Weight of the stage-2 smoothness loss of the learned normals over 8 "
@@ -116,8 +123,11 @@ class TrainConfig:
                            "low-pass (training and rendering; brfgs.render.rasterize.antialias_opacities).",
                            "--antialias/--no-antialias")
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
-    init_fill_points: int = _opt(10_000, "Add about this many Gaussians on a 2.5-D surface through the sparse points "
-                                 "(0 = sparse points only, as 3DGS).")
+    init_fill_points: int = _opt(10_000, "Add about this many Gaussians to the sparse points (0 = sparse points "
+                                 "only, as 3DGS), placed as --init-fill says.")
+    init_fill: str = _opt("surface", "Where the added Gaussians go: surface (a 2.5-D surface through the sparse "
+                          "points) or mvs (dense plane-sweep stereo of the training views, brfgs.init.mvs, its holes "
+                          "filled by a 2.5-D surface through the dense points).")
     max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
     schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --stage2-steps, --densify-refine-stop and "
                                    "--max-gaussians-per-px are given for: with n > this many training views all four "
@@ -165,7 +175,7 @@ class TrainConfig:
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
-                   "lambda_alpha", "lambda_sparse_depth")
+                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview")
         for name in lambdas:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
@@ -183,6 +193,13 @@ class TrainConfig:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
+        if self.init_fill not in INIT_FILLS:
+            raise UserError(f"init_fill must be one of {', '.join(INIT_FILLS)}, got {self.init_fill!r}", field="init_fill")
+        if self.lambda_dense_depth > 0 and (self.init_fill != "mvs" or self.init_fill_points <= 0):
+            raise UserError("the dense-depth loss needs the stereo depth maps of --init-fill mvs (with "
+                            "--init-fill-points > 0)", field="lambda_dense_depth")
+        if self.init_fill_points < 0:
+            raise UserError(f"init_fill_points must be >= 0, got {self.init_fill_points}", field="init_fill_points")
         if self.schedule_ref_views < 0:
             raise UserError(f"schedule_ref_views must be >= 0, got {self.schedule_ref_views}", field="schedule_ref_views")
         if self.views_per_step < 1:

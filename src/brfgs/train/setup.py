@@ -13,12 +13,15 @@ from brfgs.brdf.geometry import gaussian_normals
 from brfgs.brdf.head import init_head_params
 from brfgs.brdf.sh import num_sh_bases
 from brfgs.data.cir import cir_band_indices, cir_scale
+from brfgs.data import atomic
 from brfgs.init import initialize
+from brfgs.init.mvs import MVSConfig, dense_cloud, write_dense_ply
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
 from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.train.config import TrainConfig
+from brfgs.train.dense_depth import FILE as DENSE_DEPTH_FILE, save_dense_depths
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import plan
 from brfgs.train.run_folder import RunFolder
@@ -51,14 +54,36 @@ def select_and_initialise(state: TrainState, scene, cfg: TrainConfig, folder: Ru
     return init
 
 
-def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: TrainImages, log) -> None:
+def dense_fill(state: TrainState, scene, cfg: TrainConfig, init, images: TrainImages, folder: RunFolder,
+               log) -> np.ndarray:
+    """About ``init_fill_points`` points [M, 3] from dense stereo of the training views in the
+    stage-1 bands (:func:`brfgs.init.mvs.dense_cloud`); the cloud and its report go to OUT/init
+    (dense.ply, dense.json)."""
+    t = time.perf_counter()
+    tr = scene.train_indices
+    cloud = dense_cloud([images("colors").get(i)[0].numpy() for i in tr], [init.c2w[i] for i in tr],
+                        scene.intrinsics, init.points, MVSConfig(max_points=cfg.init_fill_points))
+    state.timings["dense"] = time.perf_counter() - t
+    write_dense_ply(folder.out / "init" / "dense.ply", cloud.points, cloud.normals)
+    save_dense_depths(folder.out / "init" / DENSE_DEPTH_FILE, [scene.frames[i].name for i in tr], cloud.depths)
+    atomic.write_json(folder.out / "init" / "dense.json", cloud.report)
+    log(f"init: dense stereo {cloud.report['stereo_points']} points, {cloud.report['hole_points']} more where it "
+        f"left holes, thinned to {len(cloud.points)} ({state.timings['dense']:.0f} s)")
+    return cloud.points
+
+
+def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: TrainImages, folder: RunFolder,
+                      log) -> None:
     """Gaussians at the sparse points (plus a surface fill), stage-1 colours from the images,
     optional SH rest terms, and the stage-1 background."""
     bands, s1 = state.meta["bands"], state.meta["stage1_bands"]
     pts, cols = np.asarray(init.points, np.float64), np.asarray(init.colors, np.float64)
     if cfg.init_fill_points > 0:
-        cover, seen = ground_footprints(scene, pts, init.c2w)
-        extra = surface_fill(pts, cfg.init_fill_points, cover_xy=cover, keep=seen)
+        if cfg.init_fill == "mvs":
+            extra = dense_fill(state, scene, cfg, init, images, folder, log)
+        else:
+            cover, seen = ground_footprints(scene, pts, init.c2w)
+            extra = surface_fill(pts, cfg.init_fill_points, cover_xy=cover, keep=seen)
         if extra.shape[0]:
             pts = np.concatenate([pts, extra], 0)
             cols = np.concatenate([cols, np.full((extra.shape[0], cols.shape[1]), np.nan)], 0)
@@ -139,7 +164,7 @@ def run_setup(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, pro
     """The whole set-up of a new run; leaves ``state`` at the first phase, step 0."""
     init = select_and_initialise(state, scene, cfg, folder, progress, log)
     images = TrainImages(scene, state.stage1_bands(), state.meta["cir_indices"], state.meta["cir_scale"], cfg.cache_gib)
-    initial_gaussians(state, scene, cfg, init, images, log)
+    initial_gaussians(state, scene, cfg, init, images, folder, log)
     if cfg.variant != "cir":  # spectral autoencoder (not for the CIR-only baseline)
         t = time.perf_counter()
         fit_autoencoder(state, scene, cfg, images, folder, progress, log)

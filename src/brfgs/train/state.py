@@ -22,6 +22,7 @@ from brfgs.model.features import NeuralHead, uncentre
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.train.config import TrainConfig
 from brfgs.train.phases import Phase
+from brfgs.train.dense_depth import DenseDepth
 from brfgs.train.sparse_depth import SparseDepth
 
 # meta keys that describe the run's set-up (carried from checkpoint to checkpoint)
@@ -57,6 +58,8 @@ class TrainState:
         self.timings: dict[str, float] = {}
         self._cameras: list[Camera] | None = None
         self.sparse_depth: SparseDepth | None = None  # the SfM tracks (option lambda_sparse_depth)
+        self.dense_depth: DenseDepth | None = None  # the stereo depth maps (option lambda_dense_depth)
+        self.multiview = None  # brfgs.train.multiview.MultiView (option lambda_multiview)
 
     # -- derived -----------------------------------------------------------------------
     @property

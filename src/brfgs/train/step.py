@@ -23,6 +23,8 @@ from brfgs.train.images import TrainImages
 from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
                                 masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
+from brfgs.train.dense_depth import dense_depth_loss
+from brfgs.train.multiview import multiview_loss
 from brfgs.train.sparse_depth import sparse_depth_loss
 from brfgs.train.state import TrainState, head_config
 
@@ -130,6 +132,14 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     sparse = state.sparse_depth.targets(batch.index, batch.cam) if c.lambda_sparse_depth > 0 and state.sparse_depth else None
     if sparse is not None:
         terms.append(c.lambda_sparse_depth * sparse_depth_loss(geo[..., 0], out.alpha, *sparse))
+    dense = state.dense_depth.target(batch.index, batch.cam, batch.window) if c.lambda_dense_depth > 0 and \
+        state.dense_depth else None
+    if dense is not None:
+        terms.append(c.lambda_dense_depth * dense_depth_loss(geo[..., 0], out.alpha, dense))
+    if c.lambda_multiview > 0 and state.multiview is not None:
+        nbrs = state.multiview.neighbours(batch.index, state.gen)
+        terms.append(c.lambda_multiview * multiview_loss(geo[..., 0], geo[..., 1:4], out.alpha, batch.target, batch.valid,
+                                                         batch.cam, nbrs, state.gen))
     if terms:
         greg = sum(terms) if greg is None else greg + sum(terms)
     return greg
@@ -213,7 +223,8 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     latents decoded per pixel.
     """
     c = cfg
-    surf = c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0 or c.lambda_sparse_depth > 0
+    surf = (c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0 or c.lambda_sparse_depth > 0
+            or c.lambda_dense_depth > 0 or c.lambda_multiview > 0)
     use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
     feats = _features(state, cfg, phase, batch.cam, batch.index)
     by_gaussian = c.decode == "gaussian" and phase in (Phase.STAGE2, Phase.JOINT)

@@ -43,6 +43,8 @@ from brfgs.train.phases import Phase, next_phase, plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.schedule import learning_rates
 from brfgs.train.setup import init_head, run_setup
+from brfgs.train.dense_depth import load_dense_depth
+from brfgs.train.multiview import MultiView, view_neighbour_table
 from brfgs.train.sparse_depth import load_sparse_depth
 from brfgs.train.state import TrainState
 from brfgs.train.step import forward, make_batch, neighbours, pick_view
@@ -106,6 +108,12 @@ class Trainer:
             self._on_main(setup)
             if not self.comm.is_main:  # the other ranks start from rank 0's first checkpoint
                 self._resume()
+        if self.cfg.lambda_dense_depth > 0 and st.phase.trains_geometry:
+            st.dense_depth = load_dense_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
+                                              self.scene.train_indices, self.scene.height, self.scene.width)
+        if self.cfg.lambda_multiview > 0 and st.phase.trains_geometry:
+            st.multiview = MultiView(view_neighbour_table(st.cameras, self.scene.train_indices),
+                                     lambda j: self._train_images()("colors").get(j)[0], st.cameras)
         if self.cfg.lambda_sparse_depth > 0 and st.phase.trains_geometry:
             st.sparse_depth = load_sparse_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
                                                 self.scene.train_indices)
