@@ -1,6 +1,6 @@
 """Multi-view photometric consistency (brfgs.train.multiview): the plane homography against a
-point-by-point reference, NCC against a loop, and the loss's pull toward the true depth on a
-synthetic textured terrain."""
+point-by-point reference, NCC against a loop, the loss's pull toward the true depth on a
+synthetic textured terrain, and training with it in every phase that trains geometry."""
 
 from __future__ import annotations
 
@@ -11,8 +11,12 @@ import torch
 from brfgs.data.cameras import pose_from_view_angles, project_points
 from brfgs.init import mvs, plane_sweep
 from brfgs.model.camera import camera_from_intrinsics
+from brfgs.model.io import load
+from brfgs.train.config import preset
 from brfgs.train.multiview import multiview_loss, patch_ncc, patch_offsets, plane_warp, relative_pose
+from brfgs.train.trainer import train
 from test_init_mvs import INTR, _render
+from test_train_scene import make_plane_scene
 
 
 def _cam(z, a, d=60.0):
@@ -80,3 +84,14 @@ def test_loss_is_lowest_at_the_true_depth_and_pulls_toward_it():
     lm, gm = loss(-0.6)
     assert l0 < 0.05 and lp > 2 * l0 and lm > 2 * l0
     assert gp > 0 > gm  # descent moves a surface that is too far back nearer, and one too near back
+
+
+@pytest.mark.parametrize("kw", [{}, {"joint": True}, {"variant": "cir"}], ids=["decoupled", "joint", "cir"])
+def test_training_with_the_loss_in_each_geometry_phase(tmp_path, kw):
+    """The neighbours' images come from the same store as the batch's target (stage-1 bands, all
+    bands or CIR composites), so each phase that trains geometry runs with the loss on."""
+    torch.set_num_threads(1)
+    scene = make_plane_scene(tmp_path / "scene", w=48, h=40, n_bands=12)
+    cfg = preset("tiny", threads=1, stage1_steps=8, stage2_steps=4, lambda_multiview=0.1, normal_start=0.0, **kw)
+    tensors = load(train(scene, tmp_path / "run", cfg, progress=False, log=None))[0]
+    assert all(bool(torch.isfinite(t).all()) for t in tensors.values() if t.is_floating_point())

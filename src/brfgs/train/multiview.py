@@ -134,19 +134,20 @@ def multiview_loss(
 
 
 class MultiView:
-    """What the loss needs beyond the batch: each training frame's neighbour frames and a way to
-    fetch a frame's observed stage-1 image [H, W, C]."""
+    """What the loss needs beyond the batch: each training frame's neighbour frames and the run's
+    image stores (``images(kind).get(frame)`` -> observed image [H, W, C], valid mask)."""
 
-    def __init__(self, table: dict[int, list[int]], image_of, cameras: list[Camera], per_step: int = 2):
-        self.table, self.image_of, self.cameras, self.per_step = table, image_of, cameras, per_step
+    def __init__(self, table: dict[int, list[int]], images, cameras: list[Camera], per_step: int = 2):
+        self.table, self.images, self.cameras, self.per_step = table, images, cameras, per_step
 
-    def neighbours(self, frame: int, gen: torch.Generator) -> list[tuple[Camera, Tensor]]:
-        """``per_step`` of the frame's neighbours, drawn from ``gen``, with their observed images."""
+    def neighbours(self, frame: int, kind: str, gen: torch.Generator) -> list[tuple[Camera, Tensor]]:
+        """``per_step`` of the frame's neighbours, drawn from ``gen``, with their observed images
+        from the store ``kind`` (that of the batch's target, so that the channels match)."""
         nb = self.table.get(int(frame), [])
         if not nb:
             return []
         pick = torch.randperm(len(nb), generator=gen)[: self.per_step].tolist()
-        return [(self.cameras[nb[j]], self.image_of(nb[j])) for j in pick]
+        return [(self.cameras[nb[j]], self.images(kind).get(nb[j])[0]) for j in pick]
 
 
 def view_neighbour_table(cameras: list[Camera], train_indices: list[int], k: int = 4) -> dict[int, list[int]]:

@@ -38,6 +38,7 @@ class Batch:
     target: Tensor
     valid: Tensor
     window: tuple[int, int, int, int] | None  # x0, y0, w, h
+    kind: str = "colors"  # the TrainImages store of the target: colors, full or cir
 
 
 @dataclass
@@ -79,7 +80,7 @@ def make_batch(state: TrainState, images: TrainImages, phase: Phase, i: int, win
         x0, y0, w, h = window
         cam = cam.crop(x0, y0, w, h)
         target, valid = target[y0 : y0 + h, x0 : x0 + w], valid[y0 : y0 + h, x0 : x0 + w]
-    return Batch(i, cam, target, valid, window)
+    return Batch(i, cam, target, valid, window, kind)
 
 
 def neighbours(means: Tensor, k: int = 8) -> Tensor:  # [N, k] long
@@ -137,7 +138,7 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     if dense is not None:
         terms.append(c.lambda_dense_depth * dense_depth_loss(geo[..., 0], out.alpha, dense))
     if c.lambda_multiview > 0 and state.multiview is not None:
-        nbrs = state.multiview.neighbours(batch.index, state.gen)
+        nbrs = state.multiview.neighbours(batch.index, batch.kind, state.gen)
         terms.append(c.lambda_multiview * multiview_loss(geo[..., 0], geo[..., 1:4], out.alpha, batch.target, batch.valid,
                                                          batch.cam, nbrs, state.gen))
     if terms:

@@ -113,7 +113,7 @@ class Trainer:
                                               self.scene.train_indices, self.scene.height, self.scene.width)
         if self.cfg.lambda_multiview > 0 and st.phase.trains_geometry:
             st.multiview = MultiView(view_neighbour_table(st.cameras, self.scene.train_indices),
-                                     lambda j: self._train_images()("colors").get(j)[0], st.cameras)
+                                     self._train_images(), st.cameras)
         if self.cfg.lambda_sparse_depth > 0 and st.phase.trains_geometry:
             st.sparse_depth = load_sparse_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
                                                 self.scene.train_indices)
