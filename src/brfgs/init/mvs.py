@@ -140,7 +140,7 @@ class DenseCloud:
     points: np.ndarray
     normals: np.ndarray
     report: dict
-    depths: list[np.ndarray] | None = None  # V x [h, w] m at the matching scale, NaN where not kept
+    depths: list[np.ndarray]  # V x [h, w] m at the matching scale, NaN where not kept
 
 
 def view_neighbours(centres_m: np.ndarray, target_m: np.ndarray, k: int) -> list[list[int]]:
@@ -222,12 +222,12 @@ def stereo_depths(views: Tensor, poses: list[tuple[Tensor, Tensor]], intr: Intri
     return kept, scores
 
 
-def height_field(points_m: np.ndarray, max_nodes: int = 40_000):
+def height_field(points_m: np.ndarray, max_nodes: int | None = None):
     """z(x, y) through ``points_m`` [P, 3]: linear over their Delaunay triangulation in plan view,
-    the nearest point's height outside it (a DSM); the points are thinned to ``max_nodes`` first."""
-
+    the nearest point's height outside it (a DSM); with ``max_nodes``, the points are first thinned
+    to that many (a random draw, seed 0). Returns ``z_at(xy [N, 2]) -> z [N]`` (m)."""
     p = np.asarray(points_m, np.float64)
-    if len(p) > max_nodes:
+    if max_nodes is not None and len(p) > max_nodes:
         p = p[np.random.default_rng(0).choice(len(p), max_nodes, replace=False)]
     lin = LinearNDInterpolator(p[:, :2], p[:, 2])
     near = NearestNDInterpolator(p[:, :2], p[:, 2])
@@ -244,8 +244,8 @@ def height_field(points_m: np.ndarray, max_nodes: int = 40_000):
 
 def fill_holes(depth: Tensor, intr: Intrinsics, pose: tuple[Tensor, Tensor], z_at, iterations: int = 12) -> Tensor:
     """``depth`` [h, w] with its NaN pixels set to where their rays meet the height field ``z_at``
-    (fixed-point iteration on the ray parameter from the field's median height; rays that do not
-    point down stay NaN)."""
+    (fixed-point iteration on the ray parameter, starting from the field's height below the camera;
+    rays that do not point down stay NaN)."""
     hole = ~torch.isfinite(depth)
     if not bool(hole.any()):
         return depth
@@ -255,7 +255,7 @@ def fill_holes(depth: Tensor, intr: Intrinsics, pose: tuple[Tensor, Tensor], z_a
     t = np.full(len(rays), np.nan)
     if down.any():
         r = rays[down]
-        tt = (np.median(z_at(c[None, :2] + 0 * r[:, :2])) - c[2]) / r[:, 2]
+        tt = (float(z_at(c[None, :2])[0]) - c[2]) / r[:, 2]
         for _ in range(iterations):
             xy = c[:2] + tt[:, None] * r[:, :2]
             tt = np.maximum((z_at(xy) - c[2]) / r[:, 2], 1e-3)
@@ -287,7 +287,7 @@ def dense_cloud(
     stereo = [backproject(torch.nan_to_num(d, nan=1.0), si, *pose)[torch.isfinite(d)].numpy()
               for d, pose in zip(depths, poses)]
     stereo_pts = np.concatenate(stereo) if stereo else np.zeros((0, 3))
-    z_at = height_field(stereo_pts if len(stereo_pts) >= 4 else pts)
+    z_at = height_field(stereo_pts if len(stereo_pts) >= 4 else pts, max_nodes=40_000)
     all_p, all_n, n_filled = [], [], 0
     for d, pose in zip(depths, poses):
         full = fill_holes(d, si, pose, z_at) if cfg.fill_holes else d
@@ -310,8 +310,6 @@ def dense_cloud(
 
 def write_dense_ply(path, points_m: np.ndarray, normals: np.ndarray) -> None:
     """Binary PLY of the fused cloud: x, y, z (m, ENU) and nx, ny, nz (float32), written atomically."""
-
-
     p = np.asarray(points_m, np.float32).reshape(-1, 3)
     n = np.asarray(normals, np.float32).reshape(-1, 3)
     rec = np.empty(len(p), dtype=[(k, "f4") for k in ("x", "y", "z", "nx", "ny", "nz")])

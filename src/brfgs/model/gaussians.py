@@ -29,9 +29,10 @@ from typing import Callable
 
 import numpy as np
 import torch
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 from scipy.spatial import Delaunay, cKDTree
 from torch import Tensor
+
+from brfgs.init.mvs import height_field
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
 # kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
@@ -192,6 +193,7 @@ def surface_fill(
         lo = np.percentile(xy, 2, axis=0)
         hi = np.percentile(xy, 98, axis=0)
     area = float(np.prod(np.maximum(hi - lo, 1e-6)))
+    z_at = height_field(p)  # nodes outside the hull only exist with cover_xy: they take the nearest height
     n_grid = n_target
     g = None
     for _ in range(4):  # grid spacing so that about n_target nodes survive the filters
@@ -203,10 +205,7 @@ def surface_fill(
             g = g[tri.find_simplex(g) >= 0]
         if g.shape[0] == 0:
             return np.zeros((0, 3))
-        z = LinearNDInterpolator(tri, p[:, 2])(g)
-        out_hull = ~np.isfinite(z)
-        if cover_xy is not None and out_hull.any():
-            z[out_hull] = NearestNDInterpolator(xy, p[:, 2])(g[out_hull])
+        z = z_at(g)
         ok = np.isfinite(z)
         g = np.concatenate([g[ok], z[ok, None]], 1)
         if keep is not None:
