@@ -91,6 +91,9 @@ class TrainConfig:
                                "--learn-normals/--geometric-normals")
     lambda_normal_smooth: float = _opt(0.1, "Weight of the stage-2 smoothness loss of the learned normals over 8 "
                                        "neighbours (0 = off).")
+    lambda_spectral_tv: float = _opt(0.1, "Weight of the stage-2 edge-aware spectral-angle smoothness between "
+                                     "neighbouring rendered pixels: keeps dark, uniform surfaces (water, shadow) "
+                                     "from fitting the noise of their observations (brightness is free; 0 = off).")
     stage1_sh_degree: int = _opt(0, "View dependence of the stage-1 colours: SH degree 0 (none, as the paper) to 3 "
                                  "(as 3DGS; measured worse on validation views, docs/method.md).")
     lr_normals: float = _opt(2e-3, "Adam learning rate of the learned shading normals.")
@@ -175,7 +178,7 @@ class TrainConfig:
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         lambdas = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
-                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview")
+                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview", "lambda_spectral_tv")
         for name in lambdas:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
@@ -296,6 +299,9 @@ ADDITIONS: dict[str, Addition] = {
                                 "class) because K_Li is about -1 everywhere, making z_iso and z_geo collinear"),
     "learned_background": Addition(dict(learn_background=False), 1, "pixels beyond the Gaussians (oblique views' far "
                                    "field) get a learned colour/latent instead of a fixed one"),
+    "spectral_tv": Addition(dict(lambda_spectral_tv=0.0), 2, "the decoded spectrum of a dark pixel turns with a 1 % "
+                            "change of its latent: fitted to noisy observations, water and shadow spectra scatter "
+                            "from pixel to pixel; an edge-aware spectral-angle smoothness stops it"),
     "pixel_decode": Addition(dict(decode="gaussian"), 2, "blends latents and decodes each pixel, instead of decoding "
                              "each Gaussian and blending spectra (eq. 13): d instead of B channels rasterized"),
 }

@@ -242,3 +242,24 @@ def normal_smoothness_loss(normals: torch.Tensor, neighbours: torch.Tensor) -> t
     m = n.detach()[neighbours].mean(1)  # [N, 3]
     m = m / m.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     return (1.0 - (n * m).sum(-1) ** 2).mean()
+
+
+def spectral_tv_loss(r_p: torch.Tensor, r_q: torch.Tensor, i_p: torch.Tensor, i_q: torch.Tensor,
+                     valid: torch.Tensor, scale: torch.Tensor | float, edge_rel: float = 0.05) -> torch.Tensor:
+    """Edge-aware spectral-angle smoothness of rendered spectra: mean over neighbouring pixel
+    pairs (p, q) of w · angle(r_p, r_q) (rad), w = exp(−|I_p − I_q| / (edge_rel · scale)).
+
+    Args:
+        r_p, r_q: [R, B] the pairs' rendered spectra; i_p, i_q: [R] their observed band-mean
+            reflectance (the noise of one band averages out over all of them); valid: [R] pairs
+            to score; scale: the view's mean observed reflectance.
+    Brightness (texture, shading) costs nothing, only spectral shape: on a dark, uniform surface
+    (water, shadow) the decoded spectra of neighbouring pixels cannot scatter with the noise
+    each fits, and where the observed brightness jumps (a material edge) w ≈ 0.
+    """
+    if not bool(valid.any()):
+        return r_p.sum() * 0.0
+    wgt = torch.exp(-(i_p - i_q).abs() / (edge_rel * scale))  # [R]
+    cos = (r_p * r_q).sum(-1) / (r_p.norm(dim=-1) * r_q.norm(dim=-1)).clamp_min(1e-8)
+    ang = torch.acos(cos.clamp(-1 + 1e-6, 1 - 1e-6))  # [R]
+    return (wgt * ang)[valid].sum() / valid.sum()

@@ -21,7 +21,7 @@ from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
 from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
-                                masked_psnr, normal_smoothness_loss, stage1_loss, stage2_loss)
+                                masked_psnr, normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
 from brfgs.train.dense_depth import dense_depth_loss
 from brfgs.train.multiview import multiview_loss
@@ -163,8 +163,29 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
         pred = decode_image(state.decoder, lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
+        if c.lambda_spectral_tv > 0:
+            flat_lat = lat.reshape(h * w, -1)  # [H·W, d]
+            tv = _spectral_tv(lambda q: decode_image(state.decoder, flat_lat[q]), target, valid, idx, pred)
+            greg = _plus(c.lambda_spectral_tv * tv, greg)
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
     return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
+
+
+def _spectral_tv(spectra_at, target: Tensor, valid: Tensor, idx: Tensor, pred: Tensor) -> Tensor:
+    """Edge-aware spectral-angle smoothness (:func:`spectral_tv_loss`) between the pixels ``idx``
+    [R] (flat indices of the [H, W] view; their spectra ``pred`` [R, B]) and their right and lower
+    neighbours, whose spectra ``spectra_at(q [R'])`` [R', B] gives."""
+    h, w = target.shape[:2]
+    y, x = idx // w, idx % w
+    bright = torch.nan_to_num(target, nan=0.0).mean(-1).reshape(-1)  # [H·W] band-mean observed reflectance
+    flat_valid = valid.reshape(-1)
+    scale = bright[flat_valid].mean().clamp_min(1e-6)
+    terms = []
+    for dy, dx in ((0, 1), (1, 0)):
+        ok = (y + dy < h) & (x + dx < w)  # [R]
+        p, q = idx[ok], ((y + dy) * w + (x + dx))[ok]
+        terms.append(spectral_tv_loss(pred[ok], spectra_at(q), bright[p], bright[q], flat_valid[p] & flat_valid[q], scale))
+    return sum(terms) / len(terms)
 
 
 def _frame_gain(state: TrainState, i: int) -> Tensor | float:
@@ -186,6 +207,10 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
     pred = pred * _frame_gain(state, batch.index)
     greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
     loss = stage2_loss(pred, batch.target, batch.valid, cfg.beta_cos)
+    if phase == Phase.STAGE2 and cfg.lambda_spectral_tv > 0:  # every pixel against its neighbours
+        flat = pred.reshape(-1, pred.shape[-1])  # [H·W, B]
+        idx = torch.arange(flat.shape[0])
+        loss = loss + cfg.lambda_spectral_tv * _spectral_tv(lambda q: flat[q], batch.target, batch.valid, idx, flat)
     if phase == Phase.JOINT and cfg.alpha_dssim > 0:
         sel = state.stage1_bands()
         loss = loss + cfg.alpha_dssim * (stage1_loss(pred[..., sel], batch.target[..., sel], batch.valid, 1.0))
