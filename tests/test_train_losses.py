@@ -49,7 +49,6 @@ def test_coverage_loss_is_the_uncovered_fraction():
     assert float(coverage_loss(alpha, torch.zeros(2, 2, dtype=bool))) == 0.0
 
 
-
 def test_spectral_tv_loss_against_numpy_brightness_free_and_edges():
     from brfgs.train.losses import spectral_tv_loss
 
@@ -79,18 +78,18 @@ def test_spectral_tv_gradient_and_denoising_of_a_dark_uniform_surface():
     """Per-pixel spectra of a dark, uniform surface fitted (L1) to noisy observations scatter with
     the noise; the spectral TV pulls their shapes together and toward the truth, and its gradient
     matches finite differences."""
-    from brfgs.train.losses import masked_l1, spectral_tv_loss
+    from brfgs.train.losses import masked_l1
+    from brfgs.train.step import _spectral_tv
 
     g = torch.Generator().manual_seed(0)
     h, w, b = 12, 12, 40
     truth = (0.01 + 0.02 * torch.linspace(0, 1, b, dtype=torch.float64) ** 2).expand(h, w, b)  # [H, W, B] dark
     obs = truth + 0.004 * torch.randn(h, w, b, generator=g, dtype=torch.float64)
-    bright = obs.mean(-1)  # [H, W]
+    everywhere = torch.ones(h, w, dtype=torch.bool)
 
-    def tv(img):  # right and lower neighbours, as brfgs.train.step._spectral_tv
-        pairs = [(img[:, :-1], img[:, 1:], bright[:, :-1], bright[:, 1:]), (img[:-1], img[1:], bright[:-1], bright[1:])]
-        return sum(spectral_tv_loss(p.reshape(-1, b), q.reshape(-1, b), ip.reshape(-1), iq.reshape(-1),
-                                    torch.ones(ip.numel(), dtype=torch.bool), bright.mean()) for p, q, ip, iq in pairs) / 2
+    def tv(img):  # every pixel against its right and lower neighbours, as stage 2 scores a whole image
+        flat = img.reshape(-1, b)
+        return _spectral_tv(lambda q: flat[q], obs, everywhere, torch.arange(h * w), flat)
 
     x = obs.clone().requires_grad_(True)
     tv(x).backward()
@@ -104,7 +103,7 @@ def test_spectral_tv_gradient_and_denoising_of_a_dark_uniform_surface():
         x = obs.clone().requires_grad_(True)
         opt = torch.optim.Adam([x], lr=5e-4)
         for _ in range(300):
-            loss = masked_l1(x, obs, torch.ones(h, w, dtype=torch.bool)) + lam * tv(x)
+            loss = masked_l1(x, obs, everywhere) + lam * tv(x)
             opt.zero_grad()
             loss.backward()
             opt.step()

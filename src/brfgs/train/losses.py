@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from brfgs.spectral import spectral_angle_torch
+
 
 def fill_invalid(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """target [H,W,C] with invalid pixels (valid [H,W] False) set to pred.detach()."""
@@ -260,6 +262,4 @@ def spectral_tv_loss(r_p: torch.Tensor, r_q: torch.Tensor, i_p: torch.Tensor, i_
     if not bool(valid.any()):
         return r_p.sum() * 0.0
     wgt = torch.exp(-(i_p - i_q).abs() / (edge_rel * scale))  # [R]
-    cos = (r_p * r_q).sum(-1) / (r_p.norm(dim=-1) * r_q.norm(dim=-1)).clamp_min(1e-8)
-    ang = torch.acos(cos.clamp(-1 + 1e-6, 1 - 1e-6))  # [R]
-    return (wgt * ang)[valid].sum() / valid.sum()
+    return (wgt * spectral_angle_torch(r_p, r_q))[valid].sum() / valid.sum()
