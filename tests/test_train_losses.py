@@ -112,3 +112,39 @@ def test_spectral_tv_gradient_and_denoising_of_a_dark_uniform_surface():
 
     plain, smooth = fit(0.0), fit(0.1)
     assert smooth < 0.3 * plain, (plain, smooth)  # 0.022 against 0.217 rad
+
+
+def test_decode_once_matches_decoding_each_request_apart():
+    """Stage 2's ray path decodes the scored pixels and their TV neighbours once each
+    (train.step._decode_once); the loss and its gradient with respect to the latent image are
+    those of decoding the scored pixels and each neighbour set separately (the reference), on a
+    real (conv) decoder, with pixels on the right and bottom borders drawn."""
+    from brfgs.spectral.autoencoder import SpectralAutoencoder
+    from brfgs.train.step import _decode_once, _spectral_tv
+
+    torch.manual_seed(0)
+    ae = SpectralAutoencoder(n_bands=24, latent_dim=4)
+    g = torch.Generator().manual_seed(1)
+    h, w = 9, 7
+    obs = 0.05 + 0.3 * torch.rand(h, w, 24, generator=g)  # [H, W, B]
+    valid = torch.rand(h, w, generator=g) > 0.1
+    idx = torch.cat([torch.randperm(h * w, generator=g)[:30], torch.tensor([w - 1, h * w - 1, (h - 1) * w])])
+
+    def loss(lat, once):
+        flat = lat.reshape(h * w, -1)
+        if once:
+            at = _decode_once(ae, flat, idx, w, h, with_neighbours=True)
+        else:
+            at = lambda q: ae.decode(flat[q])  # noqa: E731
+        pred = at(idx)
+        return (pred - obs.reshape(h * w, -1)[idx]).abs().mean() + _spectral_tv(at, obs, valid, idx, pred)
+
+    grads = []
+    for once in (False, True):
+        lat = torch.randn(h, w, 4, generator=torch.Generator().manual_seed(2)).requires_grad_(True)
+        val = loss(lat, once)
+        val.backward()
+        grads.append((val.detach(), lat.grad.clone()))
+    assert torch.allclose(grads[0][0], grads[1][0], rtol=1e-6, atol=1e-7)
+    assert torch.allclose(grads[0][1], grads[1][1], rtol=1e-5, atol=1e-8)
+    assert grads[1][1].abs().sum() > 0

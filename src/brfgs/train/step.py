@@ -160,15 +160,32 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
     if phase == Phase.STAGE2 and 0 < c.stage2_rays < h * w:
         # ray sampling: decode and score a random subset of the rendered pixels
         idx = torch.randperm(h * w, generator=gen)[: c.stage2_rays]
-        pred = decode_image(state.decoder, lat.reshape(h * w, -1)[idx]) * _frame_gain(state, batch.index)  # [R, B]
+        flat_lat = lat.reshape(h * w, -1)  # [H·W, d]
+        spectra_at = _decode_once(state.decoder, flat_lat, idx, w, h, with_neighbours=c.lambda_spectral_tv > 0)
+        pred = spectra_at(idx) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
         if c.lambda_spectral_tv > 0:
-            flat_lat = lat.reshape(h * w, -1)  # [H·W, d]
-            tv = _spectral_tv(lambda q: decode_image(state.decoder, flat_lat[q]), target, valid, idx, pred)
+            tv = _spectral_tv(spectra_at, target, valid, idx, pred)
             greg = _plus(c.lambda_spectral_tv * tv, greg)
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
     return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
+
+
+def _decode_once(decoder, flat_lat: Tensor, idx: Tensor, w: int, h: int, with_neighbours: bool):
+    """Decode the latents ``flat_lat`` [H·W, d] of the pixels ``idx`` [R] (and, ``with_neighbours``,
+    of their right and lower neighbours, as :func:`_spectral_tv` needs them), each pixel once even
+    when it is both scored and a neighbour; returns ``spectra_at(q [R']) -> [R', B]`` for any of
+    them. The decoder works per pixel, so this is the same map as decoding each request apart."""
+    need = idx
+    if with_neighbours:
+        y, x = idx // w, idx % w
+        right, lower = idx[x + 1 < w] + 1, idx[y + 1 < h] + w
+        need = torch.unique(torch.cat([idx, right, lower]))  # [U] sorted, each pixel once
+    spectra = decode_image(decoder, flat_lat[need])  # [U, B]
+    row = torch.full((flat_lat.shape[0],), -1, dtype=torch.long)  # pixel -> row of spectra
+    row[need] = torch.arange(need.shape[0])
+    return lambda q: spectra[row[q]]
 
 
 def _spectral_tv(spectra_at, target: Tensor, valid: Tensor, idx: Tensor, pred: Tensor) -> Tensor:
