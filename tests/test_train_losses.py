@@ -133,7 +133,7 @@ def test_decode_once_matches_decoding_each_request_apart():
     def loss(lat, once):
         flat = lat.reshape(h * w, -1)
         if once:
-            at = _decode_once(ae, flat, idx, w, h, with_neighbours=True)
+            at = _decode_once(ae, flat, idx, w, h)
         else:
             at = lambda q: ae.decode(flat[q])  # noqa: E731
         pred = at(idx)

@@ -161,7 +161,10 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
         # ray sampling: decode and score a random subset of the rendered pixels
         idx = torch.randperm(h * w, generator=gen)[: c.stage2_rays]
         flat_lat = lat.reshape(h * w, -1)  # [H·W, d]
-        spectra_at = _decode_once(state.decoder, flat_lat, idx, w, h, with_neighbours=c.lambda_spectral_tv > 0)
+        if c.lambda_spectral_tv > 0:  # the scored pixels' TV neighbours are decoded with them, once each
+            spectra_at = _decode_once(state.decoder, flat_lat, idx, w, h)
+        else:
+            spectra_at = lambda q: decode_image(state.decoder, flat_lat[q])  # noqa: E731
         pred = spectra_at(idx) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
@@ -172,20 +175,25 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
     return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
 
 
-def _decode_once(decoder, flat_lat: Tensor, idx: Tensor, w: int, h: int, with_neighbours: bool):
-    """Decode the latents ``flat_lat`` [H·W, d] of the pixels ``idx`` [R] (and, ``with_neighbours``,
-    of their right and lower neighbours, as :func:`_spectral_tv` needs them), each pixel once even
-    when it is both scored and a neighbour; returns ``spectra_at(q [R']) -> [R', B]`` for any of
-    them. The decoder works per pixel, so this is the same map as decoding each request apart."""
-    need = idx
-    if with_neighbours:
-        y, x = idx // w, idx % w
-        right, lower = idx[x + 1 < w] + 1, idx[y + 1 < h] + w
-        need = torch.unique(torch.cat([idx, right, lower]))  # [U] sorted, each pixel once
+def _neighbour_pairs(idx: Tensor, w: int, h: int) -> list[tuple[Tensor, Tensor]]:
+    """For the right and the lower neighbour of the pixels ``idx`` [R] (flat indices of an
+    [H, W] view): which of them have one inside the view (ok [R] bool) and its flat index [R_ok]."""
+    y, x = idx // w, idx % w
+    pairs = []
+    for dy, dx in ((0, 1), (1, 0)):
+        ok = (y + dy < h) & (x + dx < w)  # [R]
+        pairs.append((ok, ((y + dy) * w + (x + dx))[ok]))
+    return pairs
+
+
+def _decode_once(decoder, flat_lat: Tensor, idx: Tensor, w: int, h: int):
+    """Decode the latents ``flat_lat`` [H·W, d] of the pixels ``idx`` [R] and of their right and
+    lower neighbours (:func:`_spectral_tv` needs them), each pixel once although the sets overlap;
+    returns ``spectra_at(q [R']) -> [R', B]`` for any of them. The decoder works per pixel, so this
+    is the same map as decoding each set apart."""
+    need = torch.unique(torch.cat([idx] + [q for _, q in _neighbour_pairs(idx, w, h)]))  # [U] sorted
     spectra = decode_image(decoder, flat_lat[need])  # [U, B]
-    row = torch.full((flat_lat.shape[0],), -1, dtype=torch.long)  # pixel -> row of spectra
-    row[need] = torch.arange(need.shape[0])
-    return lambda q: spectra[row[q]]
+    return lambda q: spectra[torch.searchsorted(need, q)]
 
 
 def _spectral_tv(spectra_at, target: Tensor, valid: Tensor, idx: Tensor, pred: Tensor) -> Tensor:
@@ -193,14 +201,12 @@ def _spectral_tv(spectra_at, target: Tensor, valid: Tensor, idx: Tensor, pred: T
     [R] (flat indices of the [H, W] view; their spectra ``pred`` [R, B]) and their right and lower
     neighbours, whose spectra ``spectra_at(q [R'])`` [R', B] gives."""
     h, w = target.shape[:2]
-    y, x = idx // w, idx % w
     bright = torch.nan_to_num(target, nan=0.0).mean(-1).reshape(-1)  # [H·W] band-mean observed reflectance
     flat_valid = valid.reshape(-1)
     scale = bright[flat_valid].mean().clamp_min(1e-6)
     terms = []
-    for dy, dx in ((0, 1), (1, 0)):
-        ok = (y + dy < h) & (x + dx < w)  # [R]
-        p, q = idx[ok], ((y + dy) * w + (x + dx))[ok]
+    for ok, q in _neighbour_pairs(idx, w, h):
+        p = idx[ok]
         terms.append(spectral_tv_loss(pred[ok], spectra_at(q), bright[p], bright[q], flat_valid[p] & flat_valid[q], scale))
     return sum(terms) / len(terms)
 
