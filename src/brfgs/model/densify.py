@@ -74,7 +74,7 @@ def refine(
     n = model.n
     avg = state.grad2d / state.count.clamp_min(1)
     high = avg > cfg.grow_grad2d
-    scales = model.scales
+    scales = torch.exp(model.params["log_scales"])  # [N, 3] m, without the 3D filter (as Mip-Splatting)
     small = scales.max(-1).values <= cfg.grow_scale3d * extent
     room = max(cfg.max_gaussians - n, 0)
     clone = high & small

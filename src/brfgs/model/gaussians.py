@@ -33,6 +33,7 @@ from scipy.spatial import Delaunay, cKDTree
 from torch import Tensor
 
 from brfgs.init.mvs import height_field
+from brfgs.model.filter3d import filtered_scales_opacities
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
 # kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
@@ -57,6 +58,8 @@ class GaussianModel:
         self.latent_dim = int(latent_dim)
         self.n_colors = int(n_colors)
         self.centred = False  # hybrid head in the centred training form (brfgs.model.features.centred_hybrid_latent)
+        # [N] m²: Mip-Splatting's 3D filter variance while geometry trains (brfgs.model.filter3d), else None
+        self.filter_var: torch.Tensor | None = None
 
     # -- views -----------------------------------------------------------------
     def __getitem__(self, key: str) -> torch.Tensor:
@@ -75,7 +78,9 @@ class GaussianModel:
 
     @property
     def scales(self) -> torch.Tensor:
-        return torch.exp(self.params["log_scales"])
+        """Standard deviations [N, 3] m as rendered (3D-filtered while :attr:`filter_var` is set)."""
+        s = torch.exp(self.params["log_scales"])
+        return s if self.filter_var is None else filtered_scales_opacities(s, self.raw_opacities, self.filter_var)[0]
 
     @property
     def quats(self) -> torch.Tensor:
@@ -83,6 +88,15 @@ class GaussianModel:
 
     @property
     def opacities(self) -> torch.Tensor:
+        """Opacities [N] as rendered (compensated for the 3D filter while :attr:`filter_var` is set)."""
+        o = self.raw_opacities
+        if self.filter_var is None:
+            return o
+        return filtered_scales_opacities(torch.exp(self.params["log_scales"]), o, self.filter_var)[1]
+
+    @property
+    def raw_opacities(self) -> torch.Tensor:
+        """sigmoid of the opacity logits [N], without the 3D filter's compensation."""
         return torch.sigmoid(self.params["opacity_logits"])
 
     def state(self) -> dict[str, torch.Tensor]:
@@ -90,8 +104,10 @@ class GaussianModel:
         return {k: v.detach().contiguous().clone() for k, v in self.params.items()}
 
     def replace(self, new: dict[str, torch.Tensor]) -> None:
-        """Replace tensors (after densification) with fresh leaves."""
+        """Replace tensors (after densification) with fresh leaves (the 3D filter is then stale:
+        the trainer recomputes it before the next render)."""
         self.params = {k: v.detach().contiguous().requires_grad_(True) for k, v in new.items()}
+        self.filter_var = None
 
     # -- appearance tensors ----------------------------------------------------
     def set_head(self, head_params: dict[str, torch.Tensor], appearance: str) -> None:

@@ -125,6 +125,12 @@ class TrainConfig:
                            "so that a Gaussian seen smaller than a pixel (oblique views) is not brightened by the "
                            "low-pass (training and rendering; brfgs.render.rasterize.antialias_opacities).",
                            "--antialias/--no-antialias")
+    filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
+                           "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
+                           "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "
+                           "the geometry phase (brfgs.model.filter3d); with --antialias: Mip-Splatting. Measured "
+                           "worse (docs/method.md); with opacity resets training collapses: use "
+                           "--densify-reset-every 0.", "--filter-3d/--no-filter-3d")
     init_opacity: float = _opt(0.1, "Opacity of the initial Gaussians.")
     init_fill_points: int = _opt(10_000, "Add about this many Gaussians to the sparse points (0 = sparse points "
                                  "only, as 3DGS), placed as --init-fill says.")

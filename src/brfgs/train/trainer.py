@@ -33,6 +33,7 @@ from tqdm import tqdm
 from brfgs.data import read_scene
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
+from brfgs.model.filter3d import bake_filter, filter_variance_m2
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
 from brfgs.train.config import TrainConfig, scaled_schedule
@@ -154,6 +155,10 @@ class Trainer:
         while st.phase != Phase.DONE:
             tp = time.perf_counter()
             self._run_phase(st.phase, dict(self.phases)[st.phase])
+            if st.phase.trains_geometry and self.cfg.filter_3d:  # the saved geometry renders as trained
+                self._update_filter()
+                bake_filter(st.gaussians.params, st.gaussians.filter_var)
+                st.gaussians.filter_var = None
             st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
             if st.phase == Phase.STAGE1 and self.comm.is_main:
                 st.save_checkpoint(self.folder.stage1_ckpt)
@@ -350,6 +355,8 @@ class Trainer:
                                        for x in torch.randint(0, 2**62, (nv,), generator=st.gen)]
         params = st.params()
         NamedAdam.zero_grad(params)
+        if phase.trains_geometry and c.filter_3d and st.gaussians.filter_var is None:
+            self._update_filter()
         stats = DensifyState(st.gaussians.n) if strategy is not None else None  # this step's statistics
         sums = torch.zeros(3, dtype=torch.float64)  # loss, psnr summed over this rank's views; Ctrl-C seen
         for (i, win), gen in shard(list(zip(views, gens)), self.comm):
@@ -375,7 +382,15 @@ class Trainer:
         st.step += 1
         if strategy is not None:
             strategy.after_step(st.gaussians, st.opt, st.densify, st.step, steps, st.gen)
+            if c.filter_3d and st.step % c.densify.refine_every == 0:  # as Mip-Splatting: every 100 steps
+                self._update_filter()
         return float(sums[0]) / nv, float(sums[1]) / nv
+
+    def _update_filter(self) -> None:
+        """Mip-Splatting's 3D filter of the Gaussians' current means from the training views."""
+        st = self.state
+        st.gaussians.filter_var = filter_variance_m2(st.gaussians.means.detach(),
+                                                     [st.cameras[i] for i in self.scene.train_indices])
 
     def _merge_densify_stats(self, stats: DensifyState) -> int:
         """Add the step's densification statistics, summed over the ranks, to the run's; returns the
