@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.model import GaussianModel
+from brfgs.model import DensifyConfig, GaussianModel
 from brfgs.model.camera import Camera
 from brfgs.model.filter3d import FILTER_S, bake_filter, filter_variance_m2, filtered_scales_opacities
+from brfgs.model.io import load
 from brfgs.model.rendering import rasterize_features
 from brfgs.train.config import preset
 from brfgs.train.trainer import train
@@ -112,7 +113,7 @@ def test_filtered_training_resumes_bit_for_bit(tmp_path):
     torch.set_num_threads(1)
     scene = make_plane_scene(tmp_path / "scene", w=40, h=28, n_bands=10)
     cfg = preset("tiny", threads=1, stage1_steps=14, stage2_steps=4, checkpoint_every=5, filter_3d=True,
-                 densify=preset("tiny").densify.__class__(refine_start=2, refine_every=4, refine_stop=12))
+                 densify=DensifyConfig(refine_start=2, refine_every=4, refine_stop=12))
     ref = train(scene, tmp_path / "ref", cfg, progress=False, log=None)
 
     def stop(phase, step):
@@ -122,7 +123,6 @@ def test_filtered_training_resumes_bit_for_bit(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         train(scene, tmp_path / "run", cfg, progress=False, callback=stop, log=None)
     got = train(scene, tmp_path / "run", cfg, progress=False, log=None)
-    from brfgs.model.io import load
     a, b = load(ref)[0], load(got)[0]
     assert a.keys() == b.keys()
     for k in a:

@@ -53,16 +53,30 @@ def filter_variance_m2(
     return (s * best**2).to(means.dtype)
 
 
+def filtered_scales(
+    scales: Tensor,  # [N, 3] m, standard deviations
+    var_m2: Tensor,  # [N] m², σ²_k
+) -> Tensor:  # [N, 3] m
+    """Standard deviations of Σ' = Σ + σ² I (eq. 8)."""
+    return torch.sqrt(scales * scales + var_m2[:, None])
+
+
+def opacity_factor(
+    scales: Tensor,  # [N, 3] m, standard deviations
+    var_m2: Tensor,  # [N] m², σ²_k
+) -> Tensor:  # [N] in (0, 1]
+    """sqrt(det Σ / det Σ') (eq. 8): what the filter multiplies each opacity by."""
+    s2 = scales * scales  # [N, 3]
+    return torch.sqrt((s2 / (s2 + var_m2[:, None])).prod(-1))
+
+
 def filtered_scales_opacities(
     scales: Tensor,  # [N, 3] m, standard deviations
     opacities: Tensor,  # [N] in (0, 1)
     var_m2: Tensor,  # [N] m², σ²_k
 ) -> tuple[Tensor, Tensor]:  # scales [N, 3] m, opacities [N]
     """Σ' = Σ + σ² I and α' = α · sqrt(det Σ / det Σ') (eq. 8), with gradients to both inputs."""
-    s2 = scales * scales  # [N, 3]
-    s2f = s2 + var_m2[:, None]  # [N, 3]
-    coef = torch.sqrt((s2 / s2f).prod(-1))  # [N] = sqrt(det Σ / det Σ'), in (0, 1]
-    return torch.sqrt(s2f), opacities * coef
+    return filtered_scales(scales, var_m2), opacities * opacity_factor(scales, var_m2)
 
 
 @torch.no_grad()
@@ -71,5 +85,4 @@ def bake_filter(params: dict[str, Tensor], var_m2: Tensor) -> None:
     model then renders the same without the filter."""
     s, o = filtered_scales_opacities(torch.exp(params["log_scales"]), torch.sigmoid(params["opacity_logits"]), var_m2)
     params["log_scales"].copy_(torch.log(s))
-    o = o.clamp(1e-7, 1 - 1e-7)
-    params["opacity_logits"].copy_(torch.log(o / (1 - o)))
+    params["opacity_logits"].copy_(torch.logit(o, eps=1e-7))

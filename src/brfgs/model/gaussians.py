@@ -33,7 +33,7 @@ from scipy.spatial import Delaunay, cKDTree
 from torch import Tensor
 
 from brfgs.init.mvs import height_field
-from brfgs.model.filter3d import filtered_scales_opacities
+from brfgs.model.filter3d import filtered_scales, opacity_factor
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
 # kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
@@ -80,7 +80,7 @@ class GaussianModel:
     def scales(self) -> torch.Tensor:
         """Standard deviations [N, 3] m as rendered (3D-filtered while :attr:`filter_var` is set)."""
         s = torch.exp(self.params["log_scales"])
-        return s if self.filter_var is None else filtered_scales_opacities(s, self.raw_opacities, self.filter_var)[0]
+        return s if self.filter_var is None else filtered_scales(s, self.filter_var)
 
     @property
     def quats(self) -> torch.Tensor:
@@ -89,15 +89,8 @@ class GaussianModel:
     @property
     def opacities(self) -> torch.Tensor:
         """Opacities [N] as rendered (compensated for the 3D filter while :attr:`filter_var` is set)."""
-        o = self.raw_opacities
-        if self.filter_var is None:
-            return o
-        return filtered_scales_opacities(torch.exp(self.params["log_scales"]), o, self.filter_var)[1]
-
-    @property
-    def raw_opacities(self) -> torch.Tensor:
-        """sigmoid of the opacity logits [N], without the 3D filter's compensation."""
-        return torch.sigmoid(self.params["opacity_logits"])
+        o = torch.sigmoid(self.params["opacity_logits"])
+        return o if self.filter_var is None else o * opacity_factor(torch.exp(self.params["log_scales"]), self.filter_var)
 
     def state(self) -> dict[str, torch.Tensor]:
         """Detached copies of every tensor (for checkpoints)."""
