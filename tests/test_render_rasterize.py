@@ -19,12 +19,12 @@ def rel(a: torch.Tensor, b: torch.Tensor) -> float:
     return ((a - b).abs().max() / b.abs().max().clamp_min(1e-30)).item()
 
 
-def render(sc, backend, with_normals=True, background=None, seed=0):
+def render(sc, backend, with_normals=True, seed=0):
     """Render with random loss weights; return outputs, parameter grads and the means2d grad."""
     p = {k: sc[k].clone().requires_grad_(True) for k in PARAMS}
     out = rasterize(p["means"], p["quats"], p["scales"], p["opacities"], p["features"], sc["viewmat"], sc["K"],
                     sc["width"], sc["height"], backend=backend,
-                    normals=p["normals"] if with_normals else None, background=background)
+                    normals=p["normals"] if with_normals else None)
     g = torch.Generator().manual_seed(seed)
     loss = (out.image * torch.randn(out.image.shape, generator=g).to(out.image.dtype)).sum()
     loss = loss + (out.alpha * torch.randn(out.alpha.shape, generator=g).to(out.alpha.dtype)).sum()
@@ -36,9 +36,9 @@ def render(sc, backend, with_normals=True, background=None, seed=0):
     return out, grads, out.meta["means2d"].grad
 
 
-def compare(sc, with_normals=True, background=None, tol=1e-4):
-    o_ref, g_ref, m_ref = render(sc, "torch", with_normals, background)
-    o_cpu, g_cpu, m_cpu = render(sc, "cpu", with_normals, background)
+def compare(sc, with_normals=True, tol=1e-4):
+    o_ref, g_ref, m_ref = render(sc, "torch", with_normals)
+    o_cpu, g_cpu, m_cpu = render(sc, "cpu", with_normals)
     assert torch.equal(o_ref.meta["visible"], o_cpu.meta["visible"])
     assert torch.equal(o_ref.meta["radii"], o_cpu.meta["radii"])
     assert o_ref.meta["visible"].any()
@@ -68,10 +68,9 @@ def test_cpu_matches_torch_random_scenes(n, channels, width, height, behind, off
         assert not vis[z <= 0.01].any() and (z <= 0.01).any()
 
 
-def test_cpu_matches_torch_ground_scene_with_background():
+def test_cpu_matches_torch_ground_scene():
     sc = ground_scene(1500, 48, 40, 5, seed=3, px_size=1.5)
-    bg = torch.tensor([0.1, 0.2, 0.3, 0.4, 0.5])
-    compare(sc, with_normals=False, background=bg)
+    compare(sc, with_normals=False)
 
 
 def test_cpu_matches_torch_opaque_stack_termination_and_clamp():
@@ -122,11 +121,10 @@ def test_two_gaussians_depth_order():
 
 def test_torch_backend_gradcheck_float64():
     sc = random_scene(6, 10, 8, 2, seed=11, dtype=torch.float64, behind_fraction=0.0, offscreen=0.0, px_size=3.0)
-    bg = torch.tensor([0.3, -0.2], dtype=torch.float64)
 
     def f(means, quats, scales, opacities, features, normals):
         out = rasterize(means, quats, scales, opacities, features, sc["viewmat"], sc["K"], 10, 8,
-                        backend="torch", normals=normals, background=bg)
+                        backend="torch", normals=normals)
         return out.image, out.alpha, out.depth, out.normal
 
     inputs = tuple(sc[k].clone().requires_grad_(True) for k in PARAMS)
@@ -167,8 +165,6 @@ def test_bad_inputs_raise_user_error():
         rasterize(args[0], args[1][:, :3], *args[2:], sc["viewmat"], sc["K"], 8, 8, backend="torch")
     with pytest.raises(UserError, match="backend"):
         rasterize(*args, sc["viewmat"], sc["K"], 8, 8, backend="metal")
-    with pytest.raises(UserError, match="background"):
-        rasterize(*args, sc["viewmat"], sc["K"], 8, 8, backend="torch", background=torch.zeros(4))
     if not torch.cuda.is_available():
         with pytest.raises(UserError, match="cuda"):
             rasterize(*args, sc["viewmat"], sc["K"], 8, 8, backend="cuda")

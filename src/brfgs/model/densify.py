@@ -45,12 +45,16 @@ def accumulate(
     width: int,
     height: int,
     grad_scale: float = 1.0,
+    absgrad: bool = False,
 ) -> None:
     """Add this step's screen-space gradient norms (pixels -> NDC) of visible Gaussians; the
-    gradient is multiplied by ``grad_scale`` first (the number of views a mean loss averaged)."""
-    if means2d.grad is None:
+    gradient is multiplied by ``grad_scale`` first (the number of views a mean loss averaged).
+    With ``absgrad`` the gradient is AbsGS's ``means2d.absgrad`` (per-pixel gradients summed in
+    absolute value, set by :func:`brfgs.render.rasterize` with ``absgrad=True``)."""
+    src = getattr(means2d, "absgrad", None) if absgrad else means2d.grad
+    if src is None:
         return
-    g = means2d.grad.detach().clone()  # [N, 2] d loss / d pixel position
+    g = src.detach().clone()  # [N, 2] d loss / d pixel position
     if grad_scale != 1.0:
         g *= grad_scale
     g[:, 0] *= width / 2.0

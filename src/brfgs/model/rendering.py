@@ -52,13 +52,15 @@ def rasterize_splats(
     backend: str = "auto",
     antialiased: bool = False,
     normals: Tensor | None = None,  # [N, 3]
+    absgrad: bool = False,
 ) -> RenderOutput:
     """:func:`brfgs.render.rasterize` for ``cam``; with ``antialiased`` the opacities first get
-    Mip-Splatting's compensation for the view (:func:`brfgs.render.rasterize.antialias_opacities`)."""
+    Mip-Splatting's compensation for the view (:func:`brfgs.render.rasterize.antialias_opacities`);
+    ``absgrad``: also AbsGS's screen-space gradient (``meta["means2d"].absgrad``)."""
     if antialiased:
         opacities = antialias_opacities(means, quats, scales, opacities, cam.viewmat, cam.K, cam.width, cam.height)
     return rasterize(means, quats, scales, opacities, feats, cam.viewmat, cam.K, cam.width, cam.height,
-                     backend=backend, normals=normals)
+                     backend=backend, normals=normals, absgrad=absgrad)
 
 
 def rasterize_features(
@@ -67,9 +69,11 @@ def rasterize_features(
     cam: Camera,
     backend: str = "auto",
     antialiased: bool = False,
+    absgrad: bool = False,
 ) -> RenderOutput:
     """Rasterize ``feats`` for ``cam``: image [H, W, C] (premultiplied), alpha [H, W], depth, meta."""
-    return rasterize_splats(model.means, model.quats, model.scales, model.opacities, feats, cam, backend, antialiased)
+    return rasterize_splats(model.means, model.quats, model.scales, model.opacities, feats, cam, backend, antialiased,
+                            absgrad=absgrad)
 
 
 def composite_background(

@@ -22,7 +22,9 @@ transmittance drops below 1e-4.
 ``depth`` is the expected depth Σ wᵢ zᵢ / Σ wᵢ (normalised by alpha; 0 where alpha = 0);
 the unnormalised Σ wᵢ zᵢ is ``meta["depth_accum"]``. ``normal`` composites the given per-Gaussian
 normals like features (Σ wᵢ nᵢ, not normalised). ``meta["means2d"].grad`` after backward is the
-screen-space positional gradient in pixels (3DGS densification statistic).
+screen-space positional gradient in pixels (3DGS densification statistic); with ``absgrad=True``
+``meta["means2d"].absgrad`` is AbsGS's: each pixel's gradient summed in absolute value. ``image``
+is premultiplied by alpha; a background is the caller's (``image + (1 − alpha)·bg``).
 
 Geometry shared with the reflectance head and the trainer (one copy of each formula) is in
 ``brfgs.render.geometry``: ``quat_to_rotmat`` and ``project_pinhole``.

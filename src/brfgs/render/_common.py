@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Any
 
 # NOTE: the numba kernels freeze these constants at compile time and numba's on-disk cache
-# only watches _numba_kernels.py: after changing a constant here, touch that file (or delete
+# only watches _numba_kernels.py and _numba_project.py: after changing a constant here, touch both (or delete
 # src/brfgs/render/__pycache__) so that the kernels recompile.
 
 TILE = 16                 # tile edge in pixels

@@ -1,4 +1,4 @@
-"""Fast CPU rasterizer: numba kernels (``_numba_kernels``) wrapped in autograd Functions.
+"""Fast CPU rasterizer: numba kernels (``_numba_project``, ``_numba_kernels``) wrapped in autograd Functions.
 
 Projection, its backward, the depth sort, tile binning, rasterization and its backward all
 run in compiled, multi-threaded code; PyTorch only moves tensors in and out (zero copy).
@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from brfgs.render import _numba_kernels as nk
+from brfgs.render import _numba_project as npj
 from brfgs.render._common import ALPHA_MIN, EXTENT_ABS, EXTENT_REL, fov_limits, n_tiles
 from brfgs.render.depth_sort import stable_depth_order
 from brfgs.render.torch_backend import Projection
@@ -45,7 +46,7 @@ class _ProjectFn(torch.autograd.Function):
         rad = torch.empty(N, 2, dtype=dt)
         rect = torch.empty(N, 4, dtype=torch.int32)
         vis = torch.empty(N, dtype=torch.bool)
-        nk.project_fwd(_np(means), _np(quats), _np(scales), _np(opacities), view64, cam,
+        npj.project_fwd(_np(means), _np(quats), _np(scales), _np(opacities), view64, cam,
                        int(width), int(height), float(near), float(far),
                        m2d.numpy(), con.numpy(), dep.numpy(), rad.numpy(), rect.numpy(), vis.numpy())
         ctx.save_for_backward(means, quats, scales, vis)
@@ -63,14 +64,14 @@ class _ProjectFn(torch.autograd.Function):
         gm = torch.empty(N, 3, dtype=dt)
         gq = torch.empty(N, 4, dtype=dt)
         gs = torch.empty(N, 3, dtype=dt)
-        nk.project_bwd(_np(means), _np(quats), _np(scales), ctx.view64, ctx.cam, _np(vis),
+        npj.project_bwd(_np(means), _np(quats), _np(scales), ctx.view64, ctx.cam, _np(vis),
                        _np(v_m2d), _np(v_con), _np(v_dep), gm.numpy(), gq.numpy(), gs.numpy())
         return gm, gq, gs, None, None, None, None, None, None, None
 
 
 class _RasterFn(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, binning: _Binning, width, height):
+    def forward(ctx, means2d, conics, opacities, colors, binning: _Binning, width, height, absgrad):
         dt = colors.dtype
         D = colors.shape[1]
         image = torch.empty(height, width, D, dtype=dt)
@@ -82,6 +83,7 @@ class _RasterFn(torch.autograd.Function):
                           image.numpy(), t_final.numpy(), n_used.numpy())
         ctx.save_for_backward(means2d, conics, opacities, colors, t_final, n_used)
         ctx.binning, ctx.width, ctx.height = binning, width, height
+        ctx.absgrad_of = means2d if absgrad else None  # the tensor that gets .absgrad (as gsplat)
         return image, 1.0 - t_final
 
     @staticmethod
@@ -100,18 +102,34 @@ class _RasterFn(torch.autograd.Function):
         e_con = np.empty((E, 3), dt_np(dt))
         e_op = np.empty(E, dt_np(dt))
         e_col = np.empty((E, D), dt_np(dt))
+        args = (_np(means2d), _np(conics), _np(opacities), b.radii, b.smax, _np(colors), b.tile_start, b.tile_gid,
+                int(W), int(H), b.n_tiles_x, _np(t_final), _np(n_used), _np(v_image.to(dt)), _np(v_alpha.to(dt)),
+                e_m2d, e_con, e_op, e_col)
+        absgrad = ctx.absgrad_of is not None
+        e_abs = np.empty((E, 2), dt_np(dt)) if absgrad else None
         with numba.parallel_chunksize(1):
-            nk.raster_bwd(_np(means2d), _np(conics), _np(opacities), b.radii, b.smax, _np(colors),
-                          b.tile_start, b.tile_gid, int(W), int(H), b.n_tiles_x,
-                          _np(t_final), _np(n_used), _np(v_image.to(dt)), _np(v_alpha.to(dt)),
-                          e_m2d, e_con, e_op, e_col)
+            if absgrad:
+                nk.raster_bwd_abs(*args, e_abs)
+            else:
+                nk.raster_bwd(*args)
         v_m2d = torch.empty(N, 2, dtype=dt)
         v_con = torch.empty(N, 3, dtype=dt)
         v_op = torch.empty(N, dtype=dt)
         v_col = torch.empty(N, D, dtype=dt)
         nk.reduce_entries(b.gauss_start, b.gauss_entry, e_m2d, e_con, e_op, e_col,
                           v_m2d.numpy(), v_con.numpy(), v_op.numpy(), v_col.numpy())
-        return v_m2d, v_con, v_op, v_col, None, None, None
+        if absgrad:
+            v_abs = torch.empty(N, 2, dtype=dt)
+            nk.reduce_pairs(b.gauss_start, b.gauss_entry, e_abs, v_abs.numpy())
+            _add_absgrad(ctx.absgrad_of, v_abs)
+        return v_m2d, v_con, v_op, v_col, None, None, None, None
+
+
+def _add_absgrad(means2d: Tensor, v_abs: Tensor) -> None:
+    """Accumulate ``v_abs`` [N, 2] into ``means2d.absgrad`` (AbsGS; like ``.grad``, it sums
+    over backward passes until the caller clears it)."""
+    prev = getattr(means2d, "absgrad", None)
+    means2d.absgrad = v_abs if prev is None else prev + v_abs
 
 
 def dt_np(dt: torch.dtype) -> type:
@@ -165,7 +183,9 @@ def raster(
     opacities: Tensor,  # [N]
     colors: Tensor,  # [N, D] any channels
     width: int, height: int,  # px
+    absgrad: bool = False,
 ) -> tuple[Tensor, Tensor]:  # image [H, W, D], alpha [H, W]
-    """Composite ``colors`` front to back (numba, hand-written backward)."""
+    """Composite ``colors`` front to back (numba, hand-written backward); with ``absgrad`` the
+    backward pass also sets ``proj.means2d.absgrad`` [N, 2] (Σ_pixels |∂L_p/∂means2d|, AbsGS)."""
     b = binning(proj, opacities, width, height)
-    return _RasterFn.apply(proj.means2d, proj.conics, opacities, colors, b, width, height)
+    return _RasterFn.apply(proj.means2d, proj.conics, opacities, colors, b, width, height, absgrad)

@@ -3,7 +3,7 @@
 brfgs already uses gsplat's camera convention (world-to-camera ``viewmat`` with OpenCV axes,
 pinhole ``K``, pixel centres at +0.5, quaternions wxyz), so the wrapper only adds the camera
 batch dimension, appends the normals as extra channels, asks for the expected depth
-(``render_mode="RGB+ED"``) and applies the background itself, as the other backends do.
+(``render_mode="RGB+ED"``) and passes ``absgrad`` through (gsplat's own AbsGS gradient).
 
 Known differences from the ``torch``/``cpu`` backends (gsplat's kernels, not configurable):
 gsplat clamps alpha at 0.999 (brfgs: 0.99), so pixels under very opaque Gaussian centres
@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+from brfgs.render._common import EPS2D, FAR_PLANE, NEAR_PLANE, TILE
 
 
 def available() -> bool:
@@ -39,10 +41,10 @@ def rasterize_cuda(
     width: int,  # px
     height: int,  # px
     normals: Tensor | None = None,  # [N, 3] or None
-    near: float = 0.01,  # m
-    far: float = 1e10,  # m
+    absgrad: bool = False,  # gsplat's absgrad: meta["means2d"].absgrad after the backward pass
 ) -> tuple[Tensor, Tensor, Tensor, Tensor | None, dict]:  # image [H, W, C], alpha, depth [H, W], normal, meta
-    """Render with gsplat's ``rasterization`` (expected depth, normals as extra channels)."""
+    """Render with gsplat's ``rasterization`` (expected depth, normals as extra channels, between
+    brfgs' near and far planes)."""
     from gsplat import rasterization  # lazy: optional CUDA extension, brfgs[cuda]
 
     dev = means.device
@@ -51,8 +53,8 @@ def rasterize_cuda(
     render, alphas, gmeta = rasterization(
         means, quats, scales, opacities, colors,
         viewmat.to(dev, means.dtype)[None], K.to(dev, means.dtype)[None], int(width), int(height),
-        near_plane=float(near), far_plane=float(far), eps2d=0.3, packed=False, tile_size=16,
-        render_mode="RGB+ED", rasterize_mode="classic",
+        near_plane=NEAR_PLANE, far_plane=FAR_PLANE, eps2d=EPS2D, packed=False, tile_size=TILE,
+        render_mode="RGB+ED", rasterize_mode="classic", absgrad=absgrad,
     )
     render = render[0]                   # [H, W, C(+3) + 1]
     alpha = alphas[0, ..., 0]            # [H, W]
@@ -66,6 +68,9 @@ def rasterize_cuda(
         def _hook(grad, _view=means2d):
             g = grad[0].detach()
             _view.grad = g.clone() if _view.grad is None else _view.grad + g
+            ab = getattr(m2d_b, "absgrad", None)  # set by gsplat's backward before this hook runs
+            if ab is not None:
+                _view.absgrad = ab[0].detach().clone()
             return grad
 
         m2d_b.register_hook(_hook)

@@ -22,12 +22,13 @@ class RenderOutput(NamedTuple):
 
     depth is the expected depth Σ w_i z_i / Σ w_i (0 where alpha = 0), z along the optical axis;
     normal is Σ w_i n_i (not normalised, not divided by alpha). meta: "means2d" [N, 2] px (its
-    .grad after backward is the screen-space positional gradient), "radii" [N] int32 (px, 0 = not
+    .grad after backward is the screen-space positional gradient, its .absgrad AbsGS's sum of the
+    per-pixel gradients' absolute values), "radii" [N] int32 (px, 0 = not
     visible), "radii_xy" [N, 2] px, "visible" [N] bool, "depth_accum" [H, W] (Σ w_i z_i, m),
     "depths" [N] camera z (m), "conics" [N, 3] (cpu/torch), "backend".
     """
 
-    image: Tensor  # [H, W, C] (+ (1 − alpha)·background)
+    image: Tensor  # [H, W, C] premultiplied (a background is the caller's: image + (1 − alpha)·bg)
     alpha: Tensor  # [H, W] 1 − final transmittance
     depth: Tensor  # [H, W] m
     normal: Tensor | None  # [H, W, 3] or None
@@ -107,7 +108,7 @@ class _Splats(NamedTuple):
     normals: Tensor | None  # [N, 3] or None
 
 
-def _check_inputs(g: _Splats, viewmat, K, background) -> None:
+def _check_inputs(g: _Splats, viewmat, K) -> None:
     """UserError for a wrong type, shape or dtype of any input of :func:`rasterize`."""
     means = g.means
     N = means.shape[0] if isinstance(means, torch.Tensor) and means.dim() == 2 else None
@@ -123,8 +124,6 @@ def _check_inputs(g: _Splats, viewmat, K, background) -> None:
     _check("K", K, (3, 3))
     if g.normals is not None:
         _check("normals", g.normals, (N, 3), dt)
-    if background is not None:
-        _check("background", background, (g.features.shape[1],), dt)
 
 
 def rasterize(
@@ -139,7 +138,7 @@ def rasterize(
     height: int,  # px
     backend: str = "auto",  # "auto" | "torch" | "cpu" | "cuda"
     normals: Tensor | None = None,  # [N, 3] composited like features, or None
-    background: Tensor | None = None,  # [C] added as (1 − alpha)·background, or None
+    absgrad: bool = False,  # also set meta["means2d"].absgrad in the backward pass (AbsGS)
 ) -> RenderOutput:
     """Render N Gaussians into one camera with 3DGS semantics (see ``brfgs.render``).
 
@@ -149,19 +148,22 @@ def rasterize(
     (0.01 m, 1e10 m). All tensors share the dtype of ``means`` (float32 or float64); outputs are
     described in :class:`RenderOutput`. Gradients flow to means, quats, scales, opacities,
     features and normals. For anti-aliased splatting pass the opacities through
-    :func:`antialias_opacities` first (same for every backend).
+    :func:`antialias_opacities` first (same for every backend). With ``absgrad`` the backward
+    pass also sets ``meta["means2d"].absgrad`` [N, 2]: Σ over pixels of |∂L_p/∂x|, |∂L_p/∂y|, the
+    screen-space gradient of AbsGS (Ye et al. 2024; gsplat's ``absgrad=True``). The image is
+    premultiplied; a background is composited by the caller (``brfgs.model.rendering.composite_background``).
     """
     g = _Splats(means, quats, scales, opacities, features, normals)
-    _check_inputs(g, viewmat, K, background)
+    _check_inputs(g, viewmat, K)
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
         raise UserError(f"image size {width}x{height} must be positive", field="width/height")
     be = resolve_backend(backend, means.device)
     if be == "cuda":
-        return _rasterize_cuda(g, viewmat, K, width, height, background)
+        return _rasterize_cuda(g, viewmat, K, width, height, absgrad)
     if means.device.type != "cpu":
         raise UserError(f"backend {be!r} needs CPU tensors, got device {means.device}", field="backend")
-    return _rasterize_cpu(be, g, viewmat, K, width, height, background)
+    return _rasterize_cpu(be, g, viewmat, K, width, height, absgrad)
 
 
 def antialias_opacities(
@@ -193,22 +195,19 @@ def antialias_opacities(
 
 
 def _rasterize_cuda(g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,
-                    background: Tensor | None) -> RenderOutput:
+                    absgrad: bool) -> RenderOutput:
     """gsplat on the GPU; CPU inputs (an explicit backend="cuda") are moved there differentiably."""
     if g.means.device.type != "cuda":
         dev = torch.device("cuda")
         g = _Splats(*(None if t is None else t.to(dev) for t in g))
-        background = None if background is None else background.to(dev)
     image, alpha, depth, normal, meta = cuda_backend.rasterize_cuda(
         g.means, g.quats, g.scales, g.opacities, g.features, viewmat, K, width, height,
-        normals=g.normals, near=NEAR_PLANE, far=FAR_PLANE)
-    if background is not None:
-        image = image + (1 - alpha)[..., None] * background
+        normals=g.normals, absgrad=absgrad)
     return RenderOutput(image, alpha, depth, normal, meta)
 
 
 def _rasterize_cpu(be: str, g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,
-                   background: Tensor | None) -> RenderOutput:
+                   absgrad: bool) -> RenderOutput:
     """The ``cpu`` (numba) or ``torch`` backend: project, composite features, depth and normals."""
     if be == "cpu":
         mod = cpu_backend
@@ -224,12 +223,10 @@ def _rasterize_cpu(be: str, g: _Splats, viewmat: Tensor, K: Tensor, width: int, 
     if g.normals is not None:
         parts.append(g.normals)
     colors = torch.cat(parts, 1)                                   # [N, C + 1 (+3)]
-    planes, alpha = mod.raster(proj, g.opacities, colors, width, height)
+    planes, alpha = mod.raster(proj, g.opacities, colors, width, height, absgrad)
     image = planes[..., :C]
     depth_accum = planes[..., C]
     normal = planes[..., C + 1:C + 4] if g.normals is not None else None
-    if background is not None:
-        image = image + (1 - alpha)[..., None] * background
     depth = torch.where(alpha > 0, depth_accum / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
     means2d = proj.means2d
     if means2d.requires_grad:

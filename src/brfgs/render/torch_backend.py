@@ -165,9 +165,17 @@ def raster(
     colors: Tensor,  # [N, D] any channels
     width: int,  # px
     height: int,  # px
+    absgrad: bool = False,
 ) -> tuple[Tensor, Tensor]:  # image [H, W, D], alpha [H, W]
-    """Composite ``colors`` front to back per 16×16 tile (α-blending of 3DGS, cumprod transmittance)."""
+    """Composite ``colors`` front to back per 16×16 tile (α-blending of 3DGS, cumprod transmittance).
+
+    With ``absgrad`` the backward pass also fills ``proj.means2d.absgrad`` [N, 2]: each pixel's
+    gradient of the means taken apart (autograd of a per-pixel copy) and summed in absolute value."""
     ntx, nty = n_tiles(width, height)
+    absacc = None
+    if absgrad and proj.means2d.requires_grad:
+        absacc = torch.zeros(proj.means2d.shape, dtype=proj.means2d.dtype)  # [N, 2], filled by hooks
+        proj.means2d.absgrad = absacc
     start, gids = bin_tiles(proj, width, height)
     dtype = colors.dtype
     D = colors.shape[1]
@@ -183,10 +191,13 @@ def raster(
             t = ty * ntx + tx
             ids = gids[start[t]:start[t + 1]]                         # [K] (K may be 0)
             py, px = torch.meshgrid(ar[:th] + (y0 + 0.5), ar[:tw] + (x0 + 0.5), indexing="ij")
-            m = proj.means2d[ids]                                     # [K, 2]
+            m = proj.means2d[ids][None]                               # [1, K, 2]
+            if absacc is not None and m.requires_grad:
+                m = m.expand(th * tw, -1, -1)                         # [P, K, 2] a copy per pixel
+                m.register_hook(_abs_sum_into(absacc, ids))
             cn = proj.conics[ids]                                     # [K, 3]
-            dx = px.reshape(-1, 1) - m[None, :, 0]                    # [P, K]
-            dy = py.reshape(-1, 1) - m[None, :, 1]                    # [P, K]
+            dx = px.reshape(-1, 1) - m[:, :, 0]                       # [P, K]
+            dy = py.reshape(-1, 1) - m[:, :, 1]                       # [P, K]
             sigma = 0.5 * (cn[None, :, 0] * dx * dx + cn[None, :, 2] * dy * dy) + cn[None, :, 1] * dx * dy
             alpha = torch.clamp(opacities[ids][None, :] * torch.exp(-sigma), max=ALPHA_MAX)  # [P, K]
             keep = (alpha >= ALPHA_MIN) & (sigma >= 0)
@@ -205,3 +216,11 @@ def raster(
     image = torch.cat([r[0] for r in rows], 0)
     alpha = torch.cat([r[1] for r in rows], 0)
     return image, alpha
+
+
+def _abs_sum_into(acc: Tensor, ids: Tensor):
+    """A gradient hook that adds Σ_p |grad[p]| [K, 2] to the rows ``ids`` of ``acc`` [N, 2]."""
+    def hook(grad: Tensor | None) -> None:  # grad [P, K, 2]
+        if grad is not None:  # (None when only other inputs' gradients are asked for)
+            acc.index_add_(0, ids, grad.detach().abs().sum(0))
+    return hook

@@ -240,12 +240,14 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
     return _plus(loss, greg), masked_psnr(pred, batch.target, batch.valid)
 
 
-def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None) -> RenderOutput:
-    """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]."""
+def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None,
+               absgrad: bool = False) -> RenderOutput:
+    """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]; ``absgrad``:
+    keep AbsGS's gradient for the densification (``meta["means2d"].absgrad``)."""
     g = state.gaussians
     aa = state.cfg.antialias
     if subset is None:
-        return rasterize_features(g, feats, cam, backend, antialiased=aa)
+        return rasterize_features(g, feats, cam, backend, antialiased=aa, absgrad=absgrad)
     return rasterize_splats(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam,
                             backend, aa)
 
@@ -283,7 +285,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     n_feat = feats.shape[-1]
     if use_priors:  # depth + normal (+ depth²) channels for the surface priors
         feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
-    out = _rasterize(state, feats, batch.cam, c.backend, subset)
+    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.trains_geometry and c.densify.absgrad)
     image = out.image[..., :n_feat]
     greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
     if phase.renders_colors:

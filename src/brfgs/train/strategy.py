@@ -48,7 +48,7 @@ class DensifyStrategy:
         """Accumulate the screen-space gradient norms of the visible Gaussians (``grad_scale``: the
         number of views whose mean loss was backpropagated, so that each view counts as one, as
         gsplat's strategy does for batches of cameras)."""
-        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height, grad_scale)
+        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height, grad_scale, self.cfg.absgrad)
 
     def after_step(self, model: GaussianModel, opt: NamedAdam, state: DensifyState, step: int, steps: int,
                    gen: torch.Generator) -> None:
