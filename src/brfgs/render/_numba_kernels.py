@@ -192,7 +192,7 @@ def raster_bwd(means2d, conics, opac, radii, smax_all, colors, tile_start, tile_
     (every row written). With s_j = f_j·∂L/∂C and R_i = Σ_{j>i} w_j s_j − ∂L/∂A·T_final:
     ∂L/∂α_i = T_i s_i − R_i/(1−α_i).
     """
-    for t in prange(tile_start.shape[0] - 1):
+    for t in prange(tile_start.shape[0] - 1):  # (e_means2d stands in for e_absm2d: never touched when False)
         _bwd_tile(t, means2d, conics, opac, radii, smax_all, colors, tile_start, tile_gid, width, height, n_tiles_x,
                   t_final, n_used, v_image, v_alpha, e_means2d, e_conics, e_opac, e_colors, e_means2d, False)
 

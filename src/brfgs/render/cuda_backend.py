@@ -69,8 +69,9 @@ def rasterize_cuda(
             g = grad[0].detach()
             _view.grad = g.clone() if _view.grad is None else _view.grad + g
             ab = getattr(m2d_b, "absgrad", None)  # set by gsplat's backward before this hook runs
-            if ab is not None:
-                _view.absgrad = ab[0].detach().clone()
+            if ab is not None:  # summed over backward passes, as .grad (and as the CPU backends do)
+                prev = getattr(_view, "absgrad", None)
+                _view.absgrad = ab[0].detach().clone() if prev is None else prev + ab[0].detach()
             return grad
 
         m2d_b.register_hook(_hook)
