@@ -33,6 +33,7 @@ from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
 from brfgs.render import RenderOutput, rasterize
 from brfgs.render.rasterize import antialias_opacities
+from brfgs.render.supersample import box_downsample, fine_intrinsics
 from brfgs.render.geometry import project_pinhole
 
 if TYPE_CHECKING:  # type only: trained.py imports this module
@@ -53,14 +54,21 @@ def rasterize_splats(
     antialiased: bool = False,
     normals: Tensor | None = None,  # [N, 3]
     absgrad: bool = False,
+    supersample: int = 1,
 ) -> RenderOutput:
     """:func:`brfgs.render.rasterize` for ``cam``; with ``antialiased`` the opacities first get
     Mip-Splatting's compensation for the view (:func:`brfgs.render.rasterize.antialias_opacities`);
-    ``absgrad``: also AbsGS's screen-space gradient (``meta["means2d"].absgrad``)."""
+    ``absgrad``: also AbsGS's screen-space gradient (``meta["means2d"].absgrad``);
+    ``supersample`` s > 1: each pixel the mean of s × s sub-pixel samples (a box integral over
+    the pixel, :mod:`brfgs.render.supersample`)."""
+    K, w, h = cam.K, cam.width, cam.height
+    if supersample > 1:
+        K, w, h = fine_intrinsics(K, supersample), w * supersample, h * supersample
     if antialiased:
-        opacities = antialias_opacities(means, quats, scales, opacities, cam.viewmat, cam.K, cam.width, cam.height)
-    return rasterize(means, quats, scales, opacities, feats, cam.viewmat, cam.K, cam.width, cam.height,
-                     backend=backend, normals=normals, absgrad=absgrad)
+        opacities = antialias_opacities(means, quats, scales, opacities, cam.viewmat, K, w, h)
+    out = rasterize(means, quats, scales, opacities, feats, cam.viewmat, K, w, h,
+                    backend=backend, normals=normals, absgrad=absgrad)
+    return box_downsample(out, supersample)
 
 
 def rasterize_features(
@@ -70,10 +78,11 @@ def rasterize_features(
     backend: str = "auto",
     antialiased: bool = False,
     absgrad: bool = False,
+    supersample: int = 1,
 ) -> RenderOutput:
     """Rasterize ``feats`` for ``cam``: image [H, W, C] (premultiplied), alpha [H, W], depth, meta."""
     return rasterize_splats(model.means, model.quats, model.scales, model.opacities, feats, cam, backend, antialiased,
-                            absgrad=absgrad)
+                            absgrad=absgrad, supersample=supersample)
 
 
 def composite_background(
@@ -156,7 +165,8 @@ def _rasterize_subset(model: "TrainedModel", cam: Camera, features: FeaturesFn, 
         return RenderOutput(torch.zeros(cam.height, cam.width, feats.shape[1]), z, z.clone(),
                             torch.zeros(cam.height, cam.width, 3) if want_normals else None, {"backend": "none"})
     return rasterize_splats(means[idx].contiguous(), f["quats"][idx].contiguous(), f["scales"][idx].contiguous(),
-                            f["opacities"][idx].contiguous(), feats, cam, backend, model.antialiased, normals)
+                            f["opacities"][idx].contiguous(), feats, cam, backend, model.antialiased, normals,
+                            supersample=model.supersample)
 
 
 def _unit_normals(normal: Tensor | None) -> np.ndarray | None:

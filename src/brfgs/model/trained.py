@@ -144,6 +144,12 @@ class TrainedModel:
         """Whether it was trained (and so renders) with Mip-Splatting's 2D filter (option ``antialias``)."""
         return bool(self.config.get("antialias", False))
 
+    @property
+    def supersample(self) -> int:
+        """Sub-pixel samples per pixel side it was trained (and so renders) with (option
+        ``supersample``; models older than the option: 1)."""
+        return int(self.config.get("supersample", 1))
+
     def frame_sun(self, i: int) -> tuple[float, float]:
         """(zenith, azimuth) deg of training frame ``i``'s own sun (brfgs.data.sun), else the scene's."""
         fr = self.frames[i] if 0 <= i < len(self.frames) else {}

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 from brfgs.errors import UserError
 from brfgs.model.densify_config import DensifyConfig
+from brfgs.render.supersample import MAX_SUPERSAMPLE
 
 VARIANTS = ("brf", "sh", "neural", "cir")
 DECODE_ORDERS = ("pixel", "gaussian")
@@ -36,9 +37,8 @@ class TrainConfig:
     """Every option of ``brfgs train`` (stored in run folders and checkpoints as config.json).
 
     Each field's help is its ``--option`` help (``brfgs train --help``), generated from this class:
-    the command line never lists the options by hand. Beyond the paper (each switchable, measured
-    in docs/results.md): stage 1 on the CIR bands too, the depth-normal / flatness / depth
-    smoothness priors, SH-3 stage-1 colours, learned shading normals, ``lr_spec``.
+    the command line never lists the options by hand. The choices beyond the paper are
+    :data:`ADDITIONS` (each switchable, its reason and measured effect in docs/method.md).
     """
 
     preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), paper (the "
@@ -125,6 +125,11 @@ class TrainConfig:
                            "so that a Gaussian seen smaller than a pixel (oblique views) is not brightened by the "
                            "low-pass (training and rendering; brfgs.render.rasterize.antialias_opacities).",
                            "--antialias/--no-antialias")
+    supersample: int = _opt(1, "Render each pixel as the mean of s x s sub-pixel samples, a box integral over its "
+                            "footprint as a sensor pixel (and the simulator's truth) integrates, instead of one "
+                            "sample at its centre (training and rendering; brfgs.render.supersample). Rasterizes s^2 "
+                            "times the pixels; 1 = 3DGS's point sample (the paper). A candidate: 2 gains 0.4-0.6 dB "
+                            "on the testsites and loses 0.3 dB on the forest (docs/method.md).")
     filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
                            "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
                            "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "
@@ -200,6 +205,8 @@ class TrainConfig:
             raise UserError(f"normal_start must be in [0, 1], got {self.normal_start}", field="normal_start")
         if not 0 <= int(self.stage1_sh_degree) <= 3:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
+        if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
+            raise UserError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {self.supersample}", field="supersample")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
         if self.init_fill not in INIT_FILLS:

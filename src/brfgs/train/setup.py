@@ -98,7 +98,7 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
     if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
         with torch.no_grad():
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
-                                                            backend=cfg.backend, antialiased=cfg.antialias))
+                                                            backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample))
     if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         k = gm["colors"].shape[1]
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
@@ -133,13 +133,13 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
     gm, n, cams = state.gaussians, state.gaussians.n, state.cameras
     if cfg.variant == "cir":
         base = backprojected_targets(gm, images("cir"), cams, scene.train_indices, backend=cfg.backend,
-                                     antialiased=cfg.antialias)
+                                     antialiased=cfg.antialias, supersample=cfg.supersample)
         params = init_head_params(head_config(cfg), n, 3, z_init=base)
         state.extra["bg_colors"] = base.mean(0)
     else:
         base = backprojected_targets(gm, images("full"), cams, scene.train_indices,
                                      encode=lambda img: encode_spectra(state.decoder, img),
-                                     backend=cfg.backend, antialiased=cfg.antialias)
+                                     backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample)
         state.extra["bg_latent"] = base.mean(0).detach()
         if cfg.learn_irradiance:        # log of each frame's irradiance scale, learned in the spectral phases
             state.extra["log_irradiance"] = torch.zeros(len(state.cameras))

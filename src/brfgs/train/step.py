@@ -245,11 +245,11 @@ def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subs
     """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]; ``absgrad``:
     keep AbsGS's gradient for the densification (``meta["means2d"].absgrad``)."""
     g = state.gaussians
-    aa = state.cfg.antialias
+    aa, ss = state.cfg.antialias, state.cfg.supersample
     if subset is None:
-        return rasterize_features(g, feats, cam, backend, antialiased=aa, absgrad=absgrad)
+        return rasterize_features(g, feats, cam, backend, antialiased=aa, absgrad=absgrad, supersample=ss)
     return rasterize_splats(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam,
-                            backend, aa)
+                            backend, aa, supersample=ss)
 
 
 def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera) -> tuple[Tensor, Tensor | None]:

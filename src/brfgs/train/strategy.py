@@ -47,8 +47,11 @@ class DensifyStrategy:
                        grad_scale: float = 1.0) -> None:
         """Accumulate the screen-space gradient norms of the visible Gaussians (``grad_scale``: the
         number of views whose mean loss was backpropagated, so that each view counts as one, as
-        gsplat's strategy does for batches of cameras)."""
-        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width, height, grad_scale, self.cfg.absgrad)
+        gsplat's strategy does for batches of cameras). A supersampled render's means2d are in
+        sub-pixels (``meta["supersample"]``), so its grid is that many times wider and taller."""
+        ss = int(out.meta.get("supersample", 1))
+        accumulate(state, out.meta.get("means2d"), out.meta["visible"], width * ss, height * ss, grad_scale,
+                   self.cfg.absgrad)
 
     def after_step(self, model: GaussianModel, opt: NamedAdam, state: DensifyState, step: int, steps: int,
                    gen: torch.Generator) -> None:

@@ -41,7 +41,8 @@ def projected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera
 
 
 def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera], indices: list[int],
-                          encode=None, backend: str = "auto", antialiased: bool = False) -> Tensor:
+                          encode=None, backend: str = "auto", antialiased: bool = False,
+                          supersample: int = 1) -> Tensor:
     """Per-Gaussian mean target [N, C] weighted by the rendering weights (occlusion-aware).
 
     For each view, d/df of sum_p <image_p(f), t_p> is sum_p w_kp t_p, so one rasterization +
@@ -61,7 +62,7 @@ def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Ca
         f = torch.zeros(m.n, t.shape[-1], requires_grad=True)
         cam = cams[i]
         with torch.enable_grad():
-            out = rasterize_splats(means, quats, scales, opac, f, cam, backend, antialiased)
+            out = rasterize_splats(means, quats, scales, opac, f, cam, backend, antialiased, supersample=supersample)
             (out.image * t).sum().backward()
         acc = f.grad.clone() if acc is None else acc + f.grad
     w = acc[:, -1:]
