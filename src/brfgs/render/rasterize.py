@@ -126,6 +126,11 @@ def _check_inputs(g: _Splats, viewmat, K) -> None:
         _check("normals", g.normals, (N, 3), dt)
 
 
+def normalised_depth(depth_accum: Tensor, alpha: Tensor) -> Tensor:
+    """Expected depth Σ w z / Σ w [H, W] (m) from Σ w z and alpha [H, W]; 0 where alpha = 0."""
+    return torch.where(alpha > 0, depth_accum / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
+
+
 def rasterize(
     means: Tensor,  # [N, 3] m, world (ENU)
     quats: Tensor,  # [N, 4] (w, x, y, z), any norm
@@ -227,7 +232,7 @@ def _rasterize_cpu(be: str, g: _Splats, viewmat: Tensor, K: Tensor, width: int, 
     image = planes[..., :C]
     depth_accum = planes[..., C]
     normal = planes[..., C + 1:C + 4] if g.normals is not None else None
-    depth = torch.where(alpha > 0, depth_accum / alpha.clamp_min(1e-10), torch.zeros_like(alpha))
+    depth = normalised_depth(depth_accum, alpha)
     means2d = proj.means2d
     if means2d.requires_grad:
         means2d.retain_grad()

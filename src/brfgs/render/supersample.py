@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from brfgs.render.rasterize import RenderOutput
+from brfgs.render.rasterize import RenderOutput, normalised_depth
 
 MAX_SUPERSAMPLE = 4
 
@@ -48,7 +48,7 @@ def box_downsample(out: RenderOutput, factor: int) -> RenderOutput:
     alpha = box_mean(out.alpha, factor)  # [H, W]
     accum = out.meta["depth_accum"] if "depth_accum" in out.meta else out.depth * out.alpha
     accum = box_mean(accum, factor)  # [H, W] Σ w z, m
-    depth = (accum / alpha.clamp_min(1e-10)).where(alpha > 0, accum.new_zeros(()))
+    depth = normalised_depth(accum, alpha)
     meta = dict(out.meta, depth_accum=accum, supersample=factor)
     if "radii" in meta:  # fine px -> coarse px, rounded up
         meta["radii"] = (meta["radii"] + factor - 1) // factor

@@ -128,8 +128,8 @@ class TrainConfig:
     supersample: int = _opt(1, "Render each pixel as the mean of s x s sub-pixel samples, a box integral over its "
                             "footprint as a sensor pixel (and the simulator's truth) integrates, instead of one "
                             "sample at its centre (training and rendering; brfgs.render.supersample). Rasterizes s^2 "
-                            "times the pixels; 1 = 3DGS's point sample (the paper). A candidate: 2 gains 0.4-0.6 dB "
-                            "on the testsites and loses 0.3 dB on the forest (docs/method.md).")
+                            "times the pixels; 1 = 3DGS's point sample (the paper). A candidate: 2 gains 0.36-0.63 dB "
+                            "on the testsites and loses 0.34 dB on the forest (validation views, docs/method.md).")
     filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
                            "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
                            "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "

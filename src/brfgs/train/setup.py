@@ -98,7 +98,8 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
     if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
         with torch.no_grad():
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
-                                                            backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample))
+                                                            backend=cfg.backend, antialiased=cfg.antialias,
+                                                            supersample=cfg.supersample))
     if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         k = gm["colors"].shape[1]
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
