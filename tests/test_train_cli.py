@@ -118,7 +118,8 @@ def test_config_file_reruns_a_run_exactly(scene, tmp_path, capsys):
     assert cfg_c["components"] == ["iso", "vol", "spec"]
     bad = tmp_path / "bad.json"
     for text, field in (('{"stage1_steps": "many"}', "stage1_steps"), ('{"nope": 1}', "config"), ("[1, 2]", None),
-                        ("{not json", None), ('{"densify": {"refine_every": 1.5}}', "densify.refine_every")):
+                        ("{not json", None), ('{"densify": {"refine_every": 1.5}}', "densify.refine_every"),
+                        ('{"supersample": 0}', "supersample"), ('{"latent_dim": 99}', "latent_dim")):
         bad.write_text(text)
         capsys.readouterr()
         assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(bad), "--quiet"]) == 2
@@ -126,6 +127,11 @@ def test_config_file_reruns_a_run_exactly(scene, tmp_path, capsys):
         assert str(bad) in err and len(err.strip().splitlines()) == 1, err
         if field:
             assert field in err
+    capsys.readouterr()  # a bad value from the command line is not blamed on the file
+    assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(a / "config.json"), "--supersample", "0",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "field 'supersample'" in err and "config.json" not in err, err
     assert main(["train", str(scene), str(tmp_path / "d"), "--config", str(a / "config.json"), "--preset", "fast"]) == 2
     assert not (tmp_path / "d").exists()
 

@@ -33,6 +33,11 @@ def build_config(options: dict, config_file: Path | None = None) -> TrainConfig:
         return apply_options(base, options).validate()
     except TypeError as exc:  # a value of the wrong type in the file slipped through
         raise UserError(f"invalid options ({exc})", file=config_file) from None
+    except UserError as exc:  # a value out of range: name the file unless the command line set it
+        given = {".".join(k) for k in options}
+        if config_file is None or exc.file is not None or exc.field in given:
+            raise
+        raise UserError(exc.detail, file=config_file, field=exc.field) from None
 
 
 def _echo(quiet: bool):
