@@ -14,7 +14,8 @@ from brfgs.cli import main
 from brfgs.data import read_scene
 from brfgs.data.splits import apportion, stratified_pick, view_rings
 from brfgs.model import TrainedModel, render
-from brfgs.train.config import ADDITIONS, PAPER_METHOD, PRESETS, TrainConfig, preset
+from brfgs.cli.train import build_config
+from brfgs.train.config import ADDITIONS, FINE, PAPER_METHOD, PRESETS, TrainConfig, preset
 from brfgs.workflows.ablate import _runs
 from test_train_scene import make_plane_scene
 
@@ -76,7 +77,20 @@ def test_paper_preset_is_the_published_method():
             assert getattr(fast_paper, fld.name) == PAPER_METHOD[fld.name]
         elif fld.name != "preset":
             assert getattr(fast_paper, fld.name) == getattr(f, fld.name), fld.name
-    assert set(PRESETS) >= {"fast", "paper", "paper-fast", "tiny"}
+    assert set(PRESETS) >= {"fast", "paper", "paper-fast", "fine", "tiny"}
+
+
+def test_fine_preset_is_fast_with_supersampled_pixels_and_absgrad():
+    f, fine = preset("fast"), preset("fine")
+    assert (fine.supersample, fine.densify.absgrad, fine.densify.grow_grad2d) == (2, True, 0.0004)
+    assert (f.supersample, f.densify.absgrad, f.densify.grow_grad2d) == (1, False, 0.0002)
+    changed = {fld.name for fld in fields(TrainConfig) if getattr(fine, fld.name) != getattr(f, fld.name)}
+    assert changed == {"preset", "supersample", "densify"}
+    assert {k for k in vars(fine.densify) if getattr(fine.densify, k) != getattr(f.densify, k)} == {"absgrad", "grow_grad2d"}
+    # on the command line an option given beside the preset changes only itself
+    cfg = build_config({("preset",): "fine", ("densify", "grow_grad2d"): 0.001})
+    assert cfg.densify.absgrad and cfg.densify.grow_grad2d == 0.001 and cfg.supersample == 2
+    assert set(FINE) == {"supersample", "densify"}
 
 
 def test_additions_study_runs():

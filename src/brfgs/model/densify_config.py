@@ -18,7 +18,8 @@ class DensifyConfig:
     grow_grad2d: float = field(default=0.0002, metadata={"help": "Mean screen-space gradient (NDC) that grows a Gaussian."})
     absgrad: bool = field(default=False, metadata={"help": "Grow by AbsGS's gradient (Ye et al. 2024): per-pixel gradients "
                                                           "summed in absolute value, so opposite pulls do not cancel "
-                                                          "(gsplat: absgrad=True, with grow_grad2d 0.0008). A candidate."})
+                                                          "(gsplat: absgrad=True, with grow_grad2d 0.0008). A candidate; "
+                                                          "--preset fine: with --supersample 2, 0.0004."})
     grow_scale3d: float = field(default=0.01, metadata={"help": "Clone below, split above this largest scale (x scene extent)."})
     prune_opacity: float = field(default=0.005, metadata={"help": "Prune Gaussians below this opacity."})
     prune_scale3d: float = field(default=0.1, metadata={"help": "Prune Gaussians larger than this (x scene extent) after a reset."})

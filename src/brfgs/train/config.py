@@ -1,7 +1,8 @@
 """Training options (one dataclass; the CLI's options are generated from it) and presets.
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
-``paper`` (the published method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast``
+``fine`` (``fast`` with supersampled pixels and AbsGS's densification: more accurate, 1.8-2.3x the
+stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast``
 (the published method on the ``fast`` schedule: what the additions are measured against on a
 CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS` names each choice beyond the paper with
 the option values that switch it off (docs/method.md).
@@ -41,7 +42,9 @@ class TrainConfig:
     :data:`ADDITIONS` (each switchable, its reason and measured effect in docs/method.md).
     """
 
-    preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), paper (the "
+    preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), fine (fast "
+                       "with --supersample 2 and --densify-absgrad: +0.5-0.8 dB on 49-view testsites, 1.8-2.3x the "
+                       "stage-1 time on a CPU), paper (the "
                        "published method, GPU-scale schedule), paper-fast (the published method, fast schedule), "
                        "tiny (tests).")
     variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "
@@ -129,7 +132,8 @@ class TrainConfig:
                             "footprint as a sensor pixel (and the simulator's truth) integrates, instead of one "
                             "sample at its centre (training and rendering; brfgs.render.supersample). Rasterizes s^2 "
                             "times the pixels; 1 = 3DGS's point sample (the paper). A candidate: 2 gains 0.36-0.63 dB "
-                            "on the testsites and loses 0.34 dB on the forest (validation views, docs/method.md).")
+                            "on the testsites and loses 0.34 dB on the forest (validation views, docs/method.md); with "
+                            "--densify-absgrad it is --preset fine.")
     filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
                            "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
                            "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "
@@ -353,9 +357,15 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
                             checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0,
                             schedule_ref_views=0)
 
+# ``fine``: each pixel the mean of 2 x 2 sub-pixel samples and AbsGS's densification gradient at
+# 0.0004 (docs/results.md, Session 20: chosen on the validation views of six scenes; not the default
+# because stage 1 rasterizes four times the pixels).
+FINE: dict = dict(supersample=2, densify=dict(absgrad=True, grow_grad2d=0.0004))
+
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {
     "fast": {},
+    "fine": dict(FINE),
     "paper": {**PAPER_SCHEDULE, **PAPER_METHOD},
     "paper-fast": dict(PAPER_METHOD),
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
