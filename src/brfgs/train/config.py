@@ -1,11 +1,11 @@
 """Training options (one dataclass; the CLI's options are generated from it) and presets.
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
-``fine`` (``fast`` with supersampled pixels and AbsGS's densification: more accurate, 1.8-2.3x the
-stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast``
-(the published method on the ``fast`` schedule: what the additions are measured against on a
-CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS` names each choice beyond the paper with
-the option values that switch it off (docs/method.md).
+``fine`` (``fast`` with supersampled pixels and AbsGS's densification: more accurate, 1.8-2.3x
+the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale,
+3DGS-like 30k-step schedule), ``paper-fast`` (the published method on the ``fast`` schedule: what
+the additions are measured against on a CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS`
+names each choice beyond the paper with the option values that switch it off (docs/method.md).
 """
 
 from __future__ import annotations
