@@ -40,8 +40,9 @@ def box_downsample(out: RenderOutput, factor: int) -> RenderOutput:
 
     image, alpha and normal (premultiplied / unnormalised sums) are block means; depth is the
     block mean of Σ w z divided by the block's alpha, as the rasterizer normalises it. meta keeps
-    the fine grid's per-Gaussian entries ("means2d" and its gradient are in fine pixels) and adds
-    ``meta["supersample"] = factor``, which the densification reads to convert that gradient.
+    the fine grid's per-Gaussian entries, all in fine pixels ("means2d" and its gradient, "radii",
+    "radii_xy", "conics"), and adds ``meta["supersample"] = factor``: the unit they are in, which
+    the densification reads to convert the gradient.
     """
     if factor == 1:
         return out
@@ -50,7 +51,5 @@ def box_downsample(out: RenderOutput, factor: int) -> RenderOutput:
     accum = box_mean(accum, factor)  # [H, W] Σ w z, m
     depth = normalised_depth(accum, alpha)
     meta = dict(out.meta, depth_accum=accum, supersample=factor)
-    if "radii" in meta:  # fine px -> coarse px, rounded up
-        meta["radii"] = (meta["radii"] + factor - 1) // factor
     normal = None if out.normal is None else box_mean(out.normal, factor)
     return RenderOutput(box_mean(out.image, factor), alpha, depth, normal, meta)
