@@ -189,6 +189,11 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
     assert {h[0] for h in tr.history} == {"joint"} and len(tr.history) == 12
     with pytest.raises(UserError):
         train(scene, tmp_path / "bad", _cfg(joint=True), progress=False, from_stage1=s1, log=None)
+    # stage 2 renders the geometry with the pixel model stage 1 fitted it with
+    with pytest.raises(UserError, match="supersample") as err:
+        train(scene, tmp_path / "bad_ss", _cfg(stage1_steps=6, stage2_steps=6, supersample=2), progress=False,
+              from_stage1=s1, log=None)
+    assert err.value.field == "supersample" and str(s1) in str(err.value.file)
 
 
 def test_streaming_and_patch_training(scene, tmp_path):

@@ -262,6 +262,11 @@ class Trainer:
             raise UserError("--from-stage1 needs a decoupled spectral variant (brf, sh, neural)", field="from_stage1")
         if saved.latent_dim != cfg.latent_dim:
             raise UserError("latent_dim differs from the stage-1 run", field="latent_dim")
+        for name in ("supersample", "antialias"):  # the pixel model the geometry was fitted with
+            if getattr(saved, name) != getattr(cfg, name):
+                raise UserError(f"{name} is {getattr(cfg, name)}, but the stage-1 run fitted its geometry with "
+                                f"{getattr(saved, name)}: give the same (e.g. the stage-1 run's --preset)",
+                                file=path, field=name)
         st.neural = None
         st.densify = DensifyState(st.gaussians.n)
         if self.comm.is_main:
