@@ -82,15 +82,15 @@ def test_paper_preset_is_the_published_method():
 
 def test_fine_preset_is_fast_with_supersampled_pixels_and_absgrad():
     f, fine = preset("fast"), preset("fine")
-    assert (fine.supersample, fine.densify.absgrad, fine.densify.grow_grad2d) == (2, True, 0.0004)
-    assert (f.supersample, f.densify.absgrad, f.densify.grow_grad2d) == (1, False, 0.0002)
+    assert (fine.supersample, fine.supersample_start, fine.densify.absgrad, fine.densify.grow_grad2d) == (2, 0.5, True, 0.0004)
+    assert (f.supersample, f.supersample_start, f.densify.absgrad, f.densify.grow_grad2d) == (1, 0.0, False, 0.0002)
     changed = {fld.name for fld in fields(TrainConfig) if getattr(fine, fld.name) != getattr(f, fld.name)}
-    assert changed == {"preset", "supersample", "densify"}
+    assert changed == {"preset", "supersample", "supersample_start", "densify"}
     assert {k for k in vars(fine.densify) if getattr(fine.densify, k) != getattr(f.densify, k)} == {"absgrad", "grow_grad2d"}
     # on the command line an option given beside the preset changes only itself
     cfg = build_config({("preset",): "fine", ("densify", "grow_grad2d"): 0.001})
     assert cfg.densify.absgrad and cfg.densify.grow_grad2d == 0.001 and cfg.supersample == 2
-    assert set(FINE) == {"supersample", "densify"}
+    assert set(FINE) == {"supersample", "supersample_start", "densify"}
 
 
 def test_additions_study_runs():
@@ -234,6 +234,24 @@ def test_antialiased_model_trains_and_renders_with_the_filter(trained, tmp_path)
     without = render(tm, tm.cameras[0], backend="torch")
     assert np.isfinite(with_filter.cube).all()
     assert with_filter.alpha.sum() < without.alpha.sum()
+
+
+def test_supersampling_starts_late_in_geometry_phases_only(trained, tmp_path, monkeypatch):
+    """--supersample-start f: a geometry phase rasterizes one sample per pixel before f of its
+    steps and s x s after; stage 2 supersamples from its first step."""
+    from brfgs.train import step as step_mod
+    cfg = preset("fine")
+    cfg.supersample_start = 0.5
+    assert [step_mod.supersample_now(cfg, step_mod.Phase.STAGE1, k, 10) for k in (0, 4, 5, 9)] == [1, 1, 2, 2]
+    assert step_mod.supersample_now(cfg, step_mod.Phase.STAGE2, 0, 10) == 2
+    seen, orig = [], step_mod._rasterize
+    monkeypatch.setattr(step_mod, "_rasterize", lambda *a, **k: seen.append(k["ss"]) or orig(*a, **k))
+    scene, _ = trained
+    assert main(["train", str(scene), str(tmp_path / "late"), "--preset", "tiny", "--stage1-steps", "10",
+                 "--stage2-steps", "4", "--supersample", "2", "--supersample-start", "0.5", "--threads", "1",
+                 "--quiet", "--no-evaluate"]) == 0
+    assert seen == [1] * 5 + [2] * 9
+    assert main(["train", str(scene), str(tmp_path / "bad"), "--supersample-start", "1.5", "--quiet"]) == 2
 
 
 def test_table2_runs_fit_the_selected_bands_only_in_stage_1():

@@ -1,8 +1,8 @@
 """Training options (one dataclass; the CLI's options are generated from it) and presets.
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
-``fine`` (``fast`` with supersampled pixels and AbsGS's densification: more accurate, 1.8-2.3x
-the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale,
+``fine`` (``fast`` with supersampled pixels from half of stage 1 on and AbsGS's densification:
+more accurate, about 1.7-2x the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale,
 3DGS-like 30k-step schedule), ``paper-fast`` (the published method on the ``fast`` schedule: what
 the additions are measured against on a CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS`
 names each choice beyond the paper with the option values that switch it off (docs/method.md).
@@ -43,8 +43,8 @@ class TrainConfig:
     """
 
     preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), fine (fast "
-                       "with --supersample 2 and --densify-absgrad: +0.5-0.8 dB on 49-view testsites, 1.8-2.3x the "
-                       "stage-1 time on a CPU), paper (the "
+                       "with --supersample 2 from half of stage 1 and --densify-absgrad: +0.3-0.7 dB on the 49-view "
+                       "scenes, about 1.7-2x the stage-1 time on a CPU), paper (the "
                        "published method, GPU-scale schedule), paper-fast (the published method, fast schedule), "
                        "tiny (tests).")
     variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "
@@ -133,7 +133,11 @@ class TrainConfig:
                             "sample at its centre (training and rendering; brfgs.render.supersample). Rasterizes s^2 "
                             "times the pixels; 1 = 3DGS's point sample (the paper). A candidate: 2 gains 0.36-0.63 dB "
                             "on the testsites and loses 0.34 dB on the forest (validation views, docs/method.md); with "
-                            "--densify-absgrad it is --preset fine.")
+                            "--supersample-start 0.5 and --densify-absgrad it is --preset fine.")
+    supersample_start: float = _opt(0.0, "Fraction of a geometry phase after which --supersample applies (0 = from "
+                                    "its first step; before it each pixel is one sample). Stage 2 and rendering "
+                                    "always supersample. --preset fine: 0.5 (the forest +0.30 dB against 0, the "
+                                    "testsites -0.15 to -0.01; docs/method.md).")
     filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
                            "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
                            "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "
@@ -211,6 +215,8 @@ class TrainConfig:
             raise UserError(f"stage1_sh_degree must be 0..3, got {self.stage1_sh_degree}", field="stage1_sh_degree")
         if not 1 <= self.supersample <= MAX_SUPERSAMPLE:
             raise UserError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {self.supersample}", field="supersample")
+        if not 0 <= self.supersample_start <= 1:
+            raise UserError(f"supersample_start must be in [0, 1], got {self.supersample_start}", field="supersample_start")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
         if self.init_fill not in INIT_FILLS:
@@ -357,10 +363,10 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
                             checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0,
                             schedule_ref_views=0)
 
-# ``fine``: each pixel the mean of 2 x 2 sub-pixel samples and AbsGS's densification gradient at
-# 0.0004 (docs/results.md, Session 20: chosen on the validation views of six scenes; not the default
-# because stage 1 rasterizes four times the pixels).
-FINE: dict = dict(supersample=2, densify=dict(absgrad=True, grow_grad2d=0.0004))
+# ``fine``: each pixel the mean of 2 x 2 sub-pixel samples (from half of the geometry phase on) and
+# AbsGS's densification gradient at 0.0004 (docs/results.md, Sessions 20-21: chosen on the validation
+# views of six scenes; not the default because stage 1 rasterizes four times the pixels).
+FINE: dict = dict(supersample=2, supersample_start=0.5, densify=dict(absgrad=True, grow_grad2d=0.0004))
 
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
 PRESETS: dict[str, dict] = {

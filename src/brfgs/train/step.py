@@ -240,12 +240,21 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
     return _plus(loss, greg), masked_psnr(pred, batch.target, batch.valid)
 
 
+def supersample_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int) -> int:
+    """Sub-pixel samples per axis at ``step`` of ``phase``: 1 in a geometry phase before
+    ``supersample_start`` of its ``phase_steps``, else ``cfg.supersample``."""
+    if phase.trains_geometry and step < int(cfg.supersample_start * phase_steps):
+        return 1
+    return cfg.supersample
+
+
 def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None,
-               absgrad: bool = False) -> RenderOutput:
-    """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n]; ``absgrad``:
-    keep AbsGS's gradient for the densification (``meta["means2d"].absgrad``)."""
+               absgrad: bool = False, ss: int = 1) -> RenderOutput:
+    """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n], each pixel the
+    mean of ``ss`` x ``ss`` sub-pixels; ``absgrad``: keep AbsGS's gradient for the densification
+    (``meta["means2d"].absgrad``)."""
     g = state.gaussians
-    aa, ss = state.cfg.antialias, state.cfg.supersample
+    aa = state.cfg.antialias
     if subset is None:
         return rasterize_features(g, feats, cam, backend, antialiased=aa, absgrad=absgrad, supersample=ss)
     return rasterize_splats(g.means[subset], g.quats[subset], g.scales[subset], g.opacities[subset], feats, cam,
@@ -285,7 +294,8 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     n_feat = feats.shape[-1]
     if use_priors:  # depth + normal (+ depth²) channels for the surface priors
         feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
-    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.trains_geometry and c.densify.absgrad)
+    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.trains_geometry and c.densify.absgrad,
+                     ss=supersample_now(c, phase, state.step, phase_steps))
     image = out.image[..., :n_feat]
     greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
     if phase.renders_colors:
