@@ -2,10 +2,11 @@
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
 ``fine`` (``fast`` with supersampled pixels from half of stage 1 on and AbsGS's densification:
-more accurate, about 1.7-2x the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published method on a GPU-scale,
-3DGS-like 30k-step schedule), ``paper-fast`` (the published method on the ``fast`` schedule: what
-the additions are measured against on a CPU), ``tiny`` (tests: a few steps). :data:`ADDITIONS`
-names each choice beyond the paper with the option values that switch it off (docs/method.md).
+more accurate, 1.5-1.6x the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published
+method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast`` (the published method on the
+``fast`` schedule: what the additions are measured against on a CPU), ``tiny`` (tests: a few
+steps). :data:`ADDITIONS` names each choice beyond the paper with the option values that switch it
+off (docs/method.md).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class TrainConfig:
 
     preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), fine (fast "
                        "with --supersample 2 from half of stage 1 and --densify-absgrad: +0.3-0.7 dB on the 49-view "
-                       "scenes, about 1.7-2x the stage-1 time on a CPU), paper (the "
+                       "scenes, 1.5-1.6x the stage-1 time on a CPU), paper (the "
                        "published method, GPU-scale schedule), paper-fast (the published method, fast schedule), "
                        "tiny (tests).")
     variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "
