@@ -249,7 +249,7 @@ def supersample_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int)
 
 
 def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None,
-               absgrad: bool = False, ss: int = 1) -> RenderOutput:
+               absgrad: bool, ss: int) -> RenderOutput:
     """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n], each pixel the
     mean of ``ss`` x ``ss`` sub-pixels; ``absgrad``: keep AbsGS's gradient for the densification
     (``meta["means2d"].absgrad``)."""
