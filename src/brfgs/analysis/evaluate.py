@@ -17,6 +17,7 @@ import numpy as np
 
 from tqdm import tqdm
 
+from brfgs.analysis import by_material
 from brfgs.analysis import metrics as M
 from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
@@ -62,14 +63,29 @@ def _references(scene, i: int) -> dict:
     return refs
 
 
-def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> dict:
-    """{against: metrics} of test view ``i``; with ``out``, the CIR comparison PNGs and the ENVI render."""
+def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.ndarray, ref_cir: np.ndarray,
+                     ok: np.ndarray) -> dict | None:
+    """Per-material pixels of view ``i`` against the truth (:func:`brfgs.analysis.by_material.view_pixels`),
+    or None when the scene has no material maps for it."""
+    maps = by_material.truth_maps(scene, i)
+    if maps is None or r.cir is None:
+        return None
+    alpha, depth, spread = by_material.ray_depth_moments(lm, lm.cameras[i], backend)
+    return by_material.view_pixels(maps[0], r.cir, ref_cir, ok, alpha, depth, spread, maps[1],
+                                   r.cube if lm.spectral else None, ref if lm.spectral else None)
+
+
+def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> tuple[dict, dict | None]:
+    """({against: metrics}, per-material pixels against the truth or None) of held-out view ``i``;
+    with ``out``, the CIR comparison PNGs and the ENVI render."""
     name = scene.frames[i].name
     sun_z, sun_a = lm.frame_sun(i)                               # a held-out view under its own sun
     r = render(lm, lm.cameras[i], sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend)
-    scores = {}
+    scores, materials = {}, None
     for against, (ref, ok) in _references(scene, i).items():
         ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)
+        if against == "truth":
+            materials = _material_pixels(lm, scene, i, backend, r, ref, ref_cir, ok)
         m = M.image_metrics(r.cube, ref, r.cir, ref_cir, ok, spectral=lm.spectral,
                             spectral_reason="RGB-style model trained on CIR composites: no spectra (SAM '-')")
         scores[against] = m = {"name": name, **m}
@@ -80,7 +96,7 @@ def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None)
     if out is not None and r.cube is not None:
         write_envi(out / "eval" / "renders" / f"{name}.hdr", r.cube, scene.wavelengths_nm, scene.fwhm_nm,
                    default_bands=lm.cir_indices, ignore_value=float("nan"))
-    return scores
+    return scores, materials
 
 
 def _settings(lm: TrainedModel, scene, backend: str) -> dict:
@@ -114,6 +130,14 @@ def ring_means(views: list[dict], rings: dict[str, str]) -> dict:
     return out
 
 
+def material_means(by_view: dict[str, dict], rings: dict[str, str], names: dict[int, str]) -> dict:
+    """{"definitions", "mean": {material: stats}, "rings": {ring: {material: stats}}} pooled over the
+    views (:func:`brfgs.analysis.by_material.summarise`) of per-material pixels ``by_view`` (name -> pixels)."""
+    ring_of = {r: [v for n, v in by_view.items() if rings[n] == r] for r in sorted({rings[n] for n in by_view}, key=float)}
+    return {"definitions": by_material.DEFINITIONS, "mean": by_material.summarise(list(by_view.values()), names),
+            "rings": {r: by_material.summarise(v, names) for r, v in ring_of.items()}}
+
+
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE,
                  split: str = "test") -> dict:
@@ -133,16 +157,23 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     backend = backend or lm.config.get("backend", "auto")
     scene = _scene_for(lm, scene_path, split)
     views = {"observed": [], "truth": []}
+    by_mat: dict[str, dict] = {}                              # view name -> per-material pixels
     t0 = time.perf_counter()
     images_out = out if write_images and split == "test" else None
     for i in tqdm(scene.indices_of(split), desc=f"evaluate ({split})", leave=False, disable=not progress):
-        for against, m in _score_view(lm, scene, i, backend, images_out).items():
+        scores, materials = _score_view(lm, scene, i, backend, images_out)
+        for against, m in scores.items():
             views[against].append(m)
+        if materials is not None:
+            by_mat[scene.frames[i].name] = materials
     rings = scene.rings()
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
               "evaluated_split": split, "split": scene.split_record(), "settings": _settings(lm, scene, backend),
               "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings), "views": v}
                           for k, v in views.items() if v}}
+    if by_mat and "truth" in result["against"]:
+        result["against"]["truth"]["materials"] = material_means(by_mat, rings, by_material.material_names(
+            scene.truth_dir))
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
     atomic.write_json(out / metrics_file(split), result)
     return result
@@ -174,4 +205,9 @@ def summary_lines(result: dict) -> list[str]:
             lines.append(" " * 29 + "per ring: " + ", ".join(
                 f"{r}° {v['psnr']:.2f} dB" + (f"/{v['sam']:.4f}" if v.get("sam") is not None else "")
                 for r, v in rings.items() if v.get("psnr") is not None))
+        mats = list((block.get("materials") or {}).get("mean", {}).items())[:4]
+        if mats:
+            lines.append(" " * 29 + "largest error: " + ", ".join(
+                f"{n} {v['error_share']:.0%} ({v['psnr']:.1f} dB, alpha {v['alpha']:.2f})" for n, v in mats
+                if v.get("error_share") is not None and v.get("alpha") is not None))
     return lines

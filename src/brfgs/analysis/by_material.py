@@ -1,0 +1,168 @@
+"""Accuracy by surface material on simulated scenes, and how surface-like the model is there.
+
+A simulated scene's ``truth/materials/<view>.npy`` labels every pixel with the material its
+centre ray hits. :func:`view_pixels` gathers, per material, each held-out pixel's CIR squared
+error and spectral angle against the clean truth, the model's rendered opacity α, the spread of
+the blended depths along the pixel's ray and the signed error of the expected depth;
+:func:`summarise` pools them over views (and rings) into:
+
+- ``psnr`` (dB): CIR PSNR of the material's pixels (pooled squared error, data range 1);
+- ``sam`` (rad): mean spectral angle of its pixels (null for the CIR variant);
+- ``error_share``: its part of all the pooled CIR squared error (sums to 1 over materials);
+- ``alpha``: median rendered opacity (1: an opaque surface; below it the learned background
+  shows through);
+- ``depth_spread_m``: median standard deviation of the blended depths along the ray,
+  sqrt(E_w[t²] − E_w[t]²) (0 for one opaque surface; a translucent stack of layers blurs the
+  texture of an oblique view by about spread · tan θ_v);
+- ``depth_error_m``: median of (rendered expected depth − true depth) along the optical axis.
+
+When the maps are finer than the rendered images (``--downscale``), a pixel counts only when its
+whole block has one material (pure pixels); depths are block means.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from brfgs.analysis.metrics import spectral_angle
+from brfgs.analysis.roi import read_materials_json
+from brfgs.model import TrainedModel, render
+from brfgs.model.camera import Camera
+
+DEFINITIONS = ("pixels of each simulator material (truth/materials, pure pixels), pooled over the views: psnr (CIR, "
+               "pooled squared error), sam (mean, rad), error_share (of all pooled CIR squared error), alpha (median "
+               "rendered opacity), depth_spread_m (median sd of the blended depths along the ray, where alpha >= 0.5), "
+               "depth_error_m (median rendered expected depth - true depth, where alpha >= 0.5)")
+KEYS = ("se", "sam", "alpha", "spread", "dz")   # per-pixel values gathered per material
+MIN_ALPHA = 0.5                                 # depth statistics only where the model is mostly opaque
+
+
+def has_materials(truth_dir: Path | None) -> bool:
+    """True when ``truth_dir`` holds material maps and their table."""
+    return truth_dir is not None and (Path(truth_dir) / "materials.json").is_file() and (
+        Path(truth_dir) / "materials").is_dir()
+
+
+def material_names(truth_dir: Path) -> dict[int, str]:
+    """{material id: name} of a simulated scene (truth/materials.json)."""
+    return read_materials_json(Path(truth_dir))
+
+
+def truth_maps(scene, i: int) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """(material ids [H', W'], true depth [H', W'] m or None) of frame ``i`` on the loaded images'
+    pixel grid before downscaling (the scene's ROI cropped), or None when the scene has no map
+    for it or the frame has a camera of its own (its maps are in the raw, distorted pixels)."""
+    td = scene.truth_dir
+    mp = None if td is None else td / "materials" / f"{scene.frames[i].name}.npy"
+    if mp is None or not mp.is_file() or scene.frames[i].camera is not None:
+        return None
+    mat = np.load(mp, allow_pickle=False)
+    dp = td / "depth" / f"{scene.frames[i].name}.npy"
+    dep = np.load(dp, allow_pickle=False) if dp.is_file() else None
+    f = scene.downscale
+    x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, mat.shape[1], mat.shape[0])
+    crop = (slice(y0, y0 + h // f * f), slice(x0, x0 + w // f * f))
+    return mat[crop], None if dep is None or dep.shape != mat.shape else dep[crop]
+
+
+def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(alpha [H, W], expected depth [H, W] m, depth spread [H, W] m) of ``cam``'s rays: the
+    camera depths t of the Gaussians rasterized with their squares, E_w[t] and
+    sqrt(E_w[t²] − E_w[t]²) over the blending weights w (NaN where α = 0)."""
+    means = model.frozen()["means"]
+    vm = cam.viewmat.to(means.dtype)
+
+    def features(idx: torch.Tensor, omega_o: torch.Tensor) -> torch.Tensor:  # [n, 2]: t, t²
+        t = means[idx] @ vm[2, :3] + vm[2, 3]
+        return torch.stack([t, t * t], -1)
+
+    rv = render(model, cam, features=features, decode=False, backend=backend)
+    m = rv.image.numpy().astype(np.float64)  # [H, W, 2] premultiplied
+    a = rv.alpha.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t1 = np.where(a > 0, m[..., 0] / a, np.nan)
+        t2 = np.where(a > 0, m[..., 1] / a, np.nan)
+    return rv.alpha, t1, np.sqrt(np.clip(t2 - t1 * t1, 0.0, None))
+
+
+def _block(arr: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(block mean [h, w], block is uniform [h, w]) of a map [H, W] reduced to ``shape`` [h, w]."""
+    H, W = arr.shape
+    h, w = shape
+    if (H, W) == (h, w):
+        return arr, np.ones(shape, bool)
+    if H % h or W % w or H // h != W // w:
+        raise ValueError(f"map of shape {arr.shape} is not an integer multiple of {shape}")
+    f = H // h
+    b = arr.reshape(h, f, w, f).astype(np.float64)
+    return b.mean((1, 3)), b.min((1, 3)) == b.max((1, 3))
+
+
+def view_pixels(
+    material: np.ndarray,  # [H', W'] int material ids (H' = f·H)
+    render_cir: np.ndarray,  # [H, W, 3]
+    truth_cir: np.ndarray,  # [H, W, 3]
+    valid: np.ndarray,  # [H, W] bool
+    alpha: np.ndarray,  # [H, W]
+    depth_m: np.ndarray,  # [H, W] expected depth (NaN where nothing)
+    spread_m: np.ndarray,  # [H, W]
+    true_depth_m: np.ndarray | None = None,  # [H', W'] m along the optical axis
+    render_cube: np.ndarray | None = None,  # [H, W, B]
+    truth_cube: np.ndarray | None = None,  # [H, W, B]
+) -> dict[int, dict[str, np.ndarray]]:
+    """{material id: {key: per-pixel values [n]}} of one view (keys :data:`KEYS`; "sam" absent
+    without cubes; "spread" and "dz" NaN where α < :data:`MIN_ALPHA`, "dz" NaN without true depth)."""
+    shape = valid.shape
+    mat_mean, pure = _block(material, shape)
+    ids = np.rint(mat_mean).astype(np.int64)
+    ok = valid & pure & np.isfinite(render_cir).all(-1) & np.isfinite(truth_cir).all(-1)
+    se = ((np.asarray(render_cir, np.float64) - truth_cir) ** 2).mean(-1)  # [H, W]
+    sam = None if render_cube is None or truth_cube is None else spectral_angle(render_cube, truth_cube)
+    solid = alpha >= MIN_ALPHA
+    spread = np.where(solid, spread_m, np.nan)
+    dz = np.full(shape, np.nan)
+    if true_depth_m is not None:
+        td, _ = _block(np.asarray(true_depth_m, np.float64), shape)
+        dz = np.where(solid & (td > 0), depth_m - td, np.nan)
+    out = {}
+    for k in np.unique(ids[ok]):
+        sel = ok & (ids == k)
+        vals = {"se": se[sel], "alpha": np.asarray(alpha, np.float64)[sel], "spread": spread[sel], "dz": dz[sel]}
+        if sam is not None:
+            vals["sam"] = sam[sel]
+        out[int(k)] = vals
+    return out
+
+
+def _stats(vals: dict[str, np.ndarray], total_se: float) -> dict:
+    """The summary of one material's pooled pixels (module docstring)."""
+    mse = float(vals["se"].mean())
+
+    def med(key):
+        v = vals.get(key)
+        v = v[np.isfinite(v)] if v is not None else v
+        return None if v is None or v.size == 0 else float(np.median(v))
+
+    return {"n_pixels": int(vals["se"].size),
+            "psnr": float("inf") if mse == 0 else float(-10 * np.log10(mse)),
+            "sam": None if "sam" not in vals else float(np.mean(vals["sam"])),
+            "error_share": float(vals["se"].sum() / total_se) if total_se > 0 else None,
+            "alpha": med("alpha"), "depth_spread_m": med("spread"), "depth_error_m": med("dz")}
+
+
+def summarise(views: list[dict[int, dict[str, np.ndarray]]], names: dict[int, str]) -> dict:
+    """{material name: statistics} pooled over ``views`` (outputs of :func:`view_pixels`), the
+    largest share of the error first."""
+    pooled: dict[int, dict[str, list]] = {}
+    for v in views:
+        for k, vals in v.items():
+            p = pooled.setdefault(k, {})
+            for key, arr in vals.items():
+                p.setdefault(key, []).append(arr)
+    cat = {k: {key: np.concatenate(parts) for key, parts in p.items()} for k, p in pooled.items()}
+    total = float(sum(c["se"].sum() for c in cat.values()))
+    out = {names.get(k, str(k)): _stats(c, total) for k, c in cat.items()}
+    return dict(sorted(out.items(), key=lambda kv: -(kv[1]["error_share"] or 0.0)))
