@@ -107,7 +107,7 @@ def test_depth_spread_of_two_layers_matches_the_closed_form():
         spread[centre])
 
 
-def test_evaluate_writes_materials_for_scenes_with_material_maps(tmp_path):
+def test_evaluate_writes_materials_for_scenes_with_material_maps(tmp_path, capsys):
     from brfgs.cli import main
     from test_train_cli import TINY
     from test_train_scene import make_plane_scene
@@ -131,3 +131,12 @@ def test_evaluate_writes_materials_for_scenes_with_material_maps(tmp_path):
         assert s["n_pixels"] > 0 and s["psnr"] > 0 and 0 <= s["alpha"] <= 1 and s["sam"] is not None
         assert s["depth_error_m"] is None                   # no truth/depth in this scene
     assert "materials" not in m["against"]["observed"]
+    # maps on another pixel grid are left out; a corrupt map is an input error naming the file
+    name = m["split"]["test"][0]
+    np.save(truth / "materials" / f"{name}.npy", np.ones((10, 10), np.int16))
+    assert main(["evaluate", str(out), "--quiet", "--no-images", "--backend", "torch"]) == 0
+    m2 = json.loads((out / "metrics.json").read_text())["against"]["truth"]["materials"]
+    assert sum(s["n_pixels"] for s in m2["mean"].values()) < sum(s["n_pixels"] for s in mats["mean"].values())
+    (truth / "materials" / f"{name}.npy").write_bytes(b"not a numpy file")
+    assert main(["evaluate", str(out), "--quiet", "--no-images", "--backend", "torch"]) == 2
+    assert f"{name}.npy" in capsys.readouterr().err

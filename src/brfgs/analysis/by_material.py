@@ -29,6 +29,7 @@ import torch
 
 from brfgs.analysis.metrics import spectral_angle
 from brfgs.analysis.roi import read_materials_json
+from brfgs.errors import UserError
 from brfgs.model import TrainedModel, render
 from brfgs.model.camera import Camera
 
@@ -51,21 +52,38 @@ def material_names(truth_dir: Path) -> dict[int, str]:
     return read_materials_json(Path(truth_dir))
 
 
-def truth_maps(scene, i: int) -> tuple[np.ndarray, np.ndarray | None] | None:
-    """(material ids [H', W'], true depth [H', W'] m or None) of frame ``i`` on the loaded images'
-    pixel grid before downscaling (the scene's ROI cropped), or None when the scene has no map
-    for it or the frame has a camera of its own (its maps are in the raw, distorted pixels)."""
+def _load_map(path: Path) -> np.ndarray:
+    """A truth map [H', W'] (.npy); UserError naming the file when it cannot be read."""
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise UserError(f"unreadable truth map ({exc})", file=path) from None
+    if arr.ndim != 2:
+        raise UserError(f"a truth map must be 2-D [H, W], got shape {arr.shape}", file=path)
+    return arr
+
+
+def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """(material ids [H', W'], true depth [H', W'] m or None) of frame ``i`` on the pixel grid of the
+    images before downscaling (the scene's ROI cropped: H' = downscale · H for images of ``shape``
+    [H, W]), or None when the scene has no map for it, the frame has a camera of its own (its maps
+    are in the raw, distorted pixels) or the map is not on the images' grid."""
     td = scene.truth_dir
-    mp = None if td is None else td / "materials" / f"{scene.frames[i].name}.npy"
-    if mp is None or not mp.is_file() or scene.frames[i].camera is not None:
+    if not has_materials(td) or scene.frames[i].camera is not None:
         return None
-    mat = np.load(mp, allow_pickle=False)
+    mp = td / "materials" / f"{scene.frames[i].name}.npy"
+    if not mp.is_file():
+        return None
+    mat = _load_map(mp)
     dp = td / "depth" / f"{scene.frames[i].name}.npy"
-    dep = np.load(dp, allow_pickle=False) if dp.is_file() else None
+    dep = _load_map(dp) if dp.is_file() else None
     f = scene.downscale
     x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, mat.shape[1], mat.shape[0])
     crop = (slice(y0, y0 + h // f * f), slice(x0, x0 + w // f * f))
-    return mat[crop], None if dep is None or dep.shape != mat.shape else dep[crop]
+    mat = mat[crop]
+    if mat.shape != (shape[0] * f, shape[1] * f):
+        return None
+    return mat, None if dep is None or dep[crop].shape != mat.shape else dep[crop]
 
 
 def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:

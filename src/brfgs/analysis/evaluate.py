@@ -67,8 +67,10 @@ def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.n
                      ok: np.ndarray) -> dict | None:
     """Per-material pixels of view ``i`` against the truth (:func:`brfgs.analysis.by_material.view_pixels`),
     or None when the scene has no material maps for it."""
-    maps = by_material.truth_maps(scene, i)
-    if maps is None or r.cir is None:
+    if r.cir is None:
+        return None
+    maps = by_material.truth_maps(scene, i, r.cir.shape[:2])
+    if maps is None:
         return None
     alpha, depth, spread = by_material.ray_depth_moments(lm, lm.cameras[i], backend)
     return by_material.view_pixels(maps[0], r.cir, ref_cir, ok, alpha, depth, spread, maps[1],
