@@ -66,8 +66,8 @@ def _load_map(path: Path) -> np.ndarray:
 def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None] | None:
     """(material ids [H', W'], true depth [H', W'] m or None) of frame ``i`` on the pixel grid of the
     images before downscaling (the scene's ROI cropped: H' = downscale · H for images of ``shape``
-    [H, W]), or None when the scene has no map for it, the frame has a camera of its own (its maps
-    are in the raw, distorted pixels) or the map is not on the images' grid."""
+    [H, W]), or None when the scene has no map for it (or no truth/materials.json), the frame has a
+    camera of its own (its maps are in the raw, distorted pixels) or the map is not on the images' grid."""
     td = scene.truth_dir
     if not has_materials(td) or scene.frames[i].camera is not None:
         return None
