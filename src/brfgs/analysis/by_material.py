@@ -89,21 +89,26 @@ def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.nd
 def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(alpha [H, W], expected depth [H, W] m, depth spread [H, W] m) of ``cam``'s rays: the
     camera depths t of the Gaussians rasterized with their squares, E_w[t] and
-    sqrt(E_w[t²] − E_w[t]²) over the blending weights w (NaN where α = 0)."""
+    sqrt(E_w[t²] − E_w[t]²) over the blending weights w (NaN where α = 0). The depths are taken
+    relative to the median depth of the Gaussians in front of the camera, so that the float32
+    moments do not cancel (t² of 100 m depths would leave ~3 cm of resolution)."""
     means = model.frozen()["means"]
     vm = cam.viewmat.to(means.dtype)
+    t_all = means @ vm[2, :3] + vm[2, 3]  # [N] m
+    front = t_all[t_all > 0]
+    ref = float(front.median()) if front.numel() else 0.0
 
-    def features(idx: torch.Tensor, omega_o: torch.Tensor) -> torch.Tensor:  # [n, 2]: t, t²
-        t = means[idx] @ vm[2, :3] + vm[2, 3]
-        return torch.stack([t, t * t], -1)
+    def features(idx: torch.Tensor, omega_o: torch.Tensor) -> torch.Tensor:  # [n, 2]: t − ref, (t − ref)²
+        d = t_all[idx] - ref
+        return torch.stack([d, d * d], -1)
 
     rv = render(model, cam, features=features, decode=False, backend=backend)
     m = rv.image.numpy().astype(np.float64)  # [H, W, 2] premultiplied
     a = rv.alpha.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        t1 = np.where(a > 0, m[..., 0] / a, np.nan)
-        t2 = np.where(a > 0, m[..., 1] / a, np.nan)
-    return rv.alpha, t1, np.sqrt(np.clip(t2 - t1 * t1, 0.0, None))
+        d1 = np.where(a > 0, m[..., 0] / a, np.nan)
+        d2 = np.where(a > 0, m[..., 1] / a, np.nan)
+    return rv.alpha, d1 + ref, np.sqrt(np.clip(d2 - d1 * d1, 0.0, None))
 
 
 def _block(arr: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
