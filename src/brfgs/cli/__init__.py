@@ -52,6 +52,7 @@ COMMAND_MODULES = [
     "brfgs.cli.init",        # init: SfM / known poses -> sparse points
     "brfgs.cli.kernels",     # kernels: BRDF kernel plots and CSV
     "brfgs.cli.train",       # train / evaluate / ablate
+    "brfgs.cli.compare",     # compare: two evaluated models, margins with bootstrap intervals
     "brfgs.cli.analysis",    # render / brf / products / export
     "brfgs.cli.batch",       # batch: train -> evaluate -> products for a manifest of scenes (Ray)
     "brfgs.cli.bench",       # bench: speed and memory benchmarks

@@ -1,0 +1,44 @@
+"""``brfgs compare A B``: two evaluated models on the same held-out views, with bootstrap intervals.
+
+The library side is :mod:`brfgs.analysis.compare`; the body imports it lazily.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _runs(text: str) -> list[Path]:
+    return [Path(x.strip()) for x in text.split(",") if x.strip()]
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("compare")
+    def compare_cmd(
+        a: str = typer.Argument(..., metavar="A", help="Run folder of model A (or several, comma-separated: seeds of one "
+                                "configuration), evaluated by brfgs train/evaluate."),
+        b: str = typer.Argument(..., metavar="B", help="Run folder(s) of model B, the reference (same scene and split; "
+                                "seeds paired with A's in the order given)."),
+        split: str = typer.Option("test", "--split", help="test (metrics.json) or validation "
+                                  "(metrics_validation.json)."),
+        against: str = typer.Option("truth", "--against", help="truth (simulated scenes) or observed."),
+        resamples: int = typer.Option(10000, "--resamples", help="Bootstrap resamples of the views."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the bootstrap."),
+        json_out: Path = typer.Option(None, "--json", help="Also write the comparison to this JSON file."),
+    ) -> None:
+        """CIR PSNR margin (A − B, dB) and SAM ratio (A / B) over all views and per view ring, with 95 %
+        intervals from a paired bootstrap over the views, and the range over seed pairs when several runs
+        are given per side."""
+        from brfgs.analysis.compare import compare, read_scores, report_lines
+        from brfgs.data.atomic import write_json
+
+        runs_a = [read_scores(r, split, against) for r in _runs(a)]
+        runs_b = [read_scores(r, split, against) for r in _runs(b)]
+        res = compare(runs_a, runs_b, n_resamples=resamples, seed=seed)
+        res.update(split=split, against=against)
+        for line in report_lines(res):
+            typer.echo(line)
+        if json_out is not None:
+            typer.echo(f"comparison: {write_json(json_out, res)}")

@@ -1,0 +1,150 @@
+"""brfgs compare: paired margins of two evaluated runs with a bootstrap over the held-out views."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from brfgs.analysis import compare as C
+from brfgs.errors import UserError
+
+
+def _scores(psnr, sam, rings=None, views=None, label="run"):
+    n = len(psnr)
+    views = views or [f"v{i:02d}" for i in range(n)]
+    return C.Scores(label, views, rings or ["18"] * n, np.asarray(psnr, float), np.asarray(sam, float))
+
+
+def _metrics(views: list[tuple[str, str, float, float]], truth: bool = True) -> dict:
+    """A metrics.json in the schema of conventions.md: (name, ring, psnr, sam) per view."""
+    rings: dict = {}
+    for name, ring, _, _ in views:
+        rings.setdefault(ring, {"train": [], "test": []})["test"].append(name)
+    block = {"mean": {}, "views": [{"name": n, "psnr": p, "ssim": 0.9, "sam": s} for n, _, p, s in views]}
+    out = {"scene": "s", "model": "BRF-GS", "split": {"rings": rings}, "against": {"observed": copy.deepcopy(block)}}
+    if truth:
+        out["against"]["truth"] = block
+    return out
+
+
+def _write_run(path, metrics: dict, name: str = "metrics.json"):
+    path.mkdir(parents=True, exist_ok=True)
+    (path / name).write_text(json.dumps(metrics))
+    return path
+
+
+def test_statistics_match_a_loop_over_the_draws():
+    rng = np.random.default_rng(3)
+    a = _scores(rng.normal(30, 2, 9), rng.uniform(0.02, 0.04, 9))
+    b = _scores(rng.normal(29, 2, 9), rng.uniform(0.02, 0.05, 9))
+    res = C.compare_block(a, b, np.arange(9), n_resamples=500, seed=7)
+    idx = C.bootstrap_indices(9, 500, 7)
+    m_loop, r_loop = [], []
+    for row in idx:  # float64 reference, one resample at a time
+        m_loop.append(sum(a.psnr_db[i] for i in row) / 9 - sum(b.psnr_db[i] for i in row) / 9)
+        r_loop.append(sum(a.sam_rad[i] for i in row) / sum(b.sam_rad[i] for i in row))
+    assert res["margin_db"] == pytest.approx(a.psnr_db.mean() - b.psnr_db.mean())
+    assert res["sam_ratio"] == pytest.approx(a.sam_rad.mean() / b.sam_rad.mean())
+    np.testing.assert_allclose(res["margin_db_ci95"], np.percentile(m_loop, [2.5, 97.5]), rtol=1e-12)
+    np.testing.assert_allclose(res["sam_ratio_ci95"], np.percentile(r_loop, [2.5, 97.5]), rtol=1e-12)
+    # the same seed gives the same draw; another seed another one
+    assert np.array_equal(idx, C.bootstrap_indices(9, 500, 7))
+    assert not np.array_equal(idx, C.bootstrap_indices(9, 500, 8))
+
+
+def test_a_constant_shift_has_a_zero_width_interval():
+    b = _scores([30.0, 28.0, 31.5, 25.0], [0.03, 0.02, 0.05, 0.04])
+    a = _scores(b.psnr_db + 1.25, b.sam_rad * 0.7)
+    res = C.compare_block(a, b, np.arange(4), 1000, 0)
+    assert res["margin_db"] == pytest.approx(1.25) and res["sam_ratio"] == pytest.approx(0.7)
+    np.testing.assert_allclose(res["margin_db_ci95"], [1.25, 1.25])
+    np.testing.assert_allclose(res["sam_ratio_ci95"], [0.7, 0.7])
+    assert "margin_db_ci95" not in C.compare_block(a, b, np.arange(2), 1000, 0)  # too few views for one
+
+
+def test_the_interval_covers_the_true_margin_about_95_percent_of_the_time():
+    # views drawn i.i.d.: the paired difference has mean 0.5 dB; a correct 95 % interval covers it in
+    # about 95 % of repeated experiments (a 50 % interval would cover it in about half)
+    rng = np.random.default_rng(11)
+    hits = 0
+    for k in range(300):
+        b = rng.normal(30.0, 2.0, 25)
+        a = b + 0.5 + rng.normal(0.0, 0.6, 25)
+        lo, hi = C.compare_block(_scores(a, np.full(25, 0.03)), _scores(b, np.full(25, 0.03)), np.arange(25),
+                                 1000, k)["margin_db_ci95"]
+        hits += lo <= 0.5 <= hi
+    assert 0.88 <= hits / 300 <= 0.99
+
+
+def test_seeds_are_averaged_per_view_and_paired_in_order():
+    a1, a2 = _scores([30, 31, 32], [0.02] * 3), _scores([32, 33, 34], [0.04] * 3)
+    b1, b2 = _scores([29, 30, 31], [0.04] * 3), _scores([29, 30, 31], [0.04] * 3)
+    res = C.compare([a1, a2], [b1, b2], n_resamples=200, seed=0)
+    assert res["all"]["psnr_a_db"] == pytest.approx(32.0) and res["all"]["margin_db"] == pytest.approx(2.0)
+    assert res["all"]["sam_ratio"] == pytest.approx(0.75)
+    assert [p["margin_db"] for p in res["seed_pairs"]] == pytest.approx([1.0, 3.0])
+    assert [p["sam_ratio"] for p in res["seed_pairs"]] == pytest.approx([0.5, 1.0])
+    with pytest.raises(UserError, match="as many runs"):
+        C.compare([a1, a2], [b1], n_resamples=200)
+    with pytest.raises(UserError, match="different views"):
+        C.compare([a1], [_scores([1, 2, 3], [0.1] * 3, views=["x", "y", "z"])])
+
+
+def test_read_scores_maps_views_to_rings_and_names_bad_fields(tmp_path):
+    views = [("v2_z58", "58", 25.0, 0.05), ("v1_z18", "18", 32.0, 0.02), ("v3_z18", "18", 31.0, 0.03)]
+    run = _write_run(tmp_path / "run", _metrics(views))
+    s = C.read_scores(run)
+    assert s.views == ["v1_z18", "v2_z58", "v3_z18"] and s.rings == ["18", "58", "18"]
+    assert list(s.psnr_db) == [32.0, 25.0, 31.0]
+    with pytest.raises(UserError, match="metrics_validation.json"):
+        C.read_scores(run, split="validation")
+    bad = _metrics(views)
+    bad["against"]["truth"]["views"][1]["sam"] = None
+    bad["against"]["truth"]["views"][1]["sam_reason"] = "no truth cube"
+    with pytest.raises(UserError, match=r"field 'against.truth.views\[1\].sam'.*no truth cube"):
+        C.read_scores(_write_run(tmp_path / "bad", bad))
+    with pytest.raises(UserError, match="use --against observed"):
+        C.read_scores(_write_run(tmp_path / "obs", _metrics(views, truth=False)))
+    assert C.read_scores(tmp_path / "obs", against="observed").views == s.views
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "metrics.json").write_text("{not json")
+    with pytest.raises(UserError, match="not valid JSON"):
+        C.read_scores(tmp_path / "junk")
+
+
+def test_cli_compares_evaluated_runs(tmp_path, capsys):
+    from brfgs.cli import main
+    from test_train_cli import TINY
+    from test_train_scene import make_plane_scene
+    torch.set_num_threads(1)
+    scene = make_plane_scene(tmp_path / "scene", w=64, h=48, n_bands=12)
+    run = tmp_path / "run"
+    assert main(["train", str(scene), str(run), *TINY]) == 0  # the real metrics.json of brfgs evaluate
+    m = json.loads((run / "metrics.json").read_text())
+    for v in m["against"]["truth"]["views"]:
+        v["psnr"] += 0.5
+        v["sam"] *= 0.8
+    better = _write_run(tmp_path / "better", m)
+    capsys.readouterr()
+    assert main(["compare", str(better), str(run), "--json", str(tmp_path / "cmp.json")]) == 0
+    out = capsys.readouterr().out
+    res = json.loads((tmp_path / "cmp.json").read_text())
+    n = len(m["against"]["truth"]["views"])
+    assert res["all"]["n_views"] == n and res["all"]["margin_db"] == pytest.approx(0.5)
+    assert res["all"]["sam_ratio"] == pytest.approx(0.8)
+    assert sum(blk["n_views"] for blk in res["rings"].values()) == n and "all" not in res["rings"]
+    assert "| all |" in out and "+0.50" in out and "0.800" in out
+    # observed scores were left alone: no margin there
+    assert main(["compare", str(better), str(run), "--against", "observed"]) == 0
+    assert "| all |" in capsys.readouterr().out
+    # user errors: one line naming the file, exit 2
+    assert main(["compare", str(better), str(tmp_path / "missing")]) == 2
+    assert "missing/metrics.json" in capsys.readouterr().err
+    assert main(["compare", f"{better},{run}", str(run)]) == 2
+    assert "as many runs" in capsys.readouterr().err
+    assert main(["compare", str(better), str(run), "--split", "train"]) == 2
+    assert "--split" in capsys.readouterr().err
