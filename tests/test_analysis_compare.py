@@ -81,13 +81,19 @@ def test_the_interval_covers_the_true_margin_about_95_percent_of_the_time():
 
 
 def test_seeds_are_averaged_per_view_and_paired_in_order():
-    a1, a2 = _scores([30, 31, 32], [0.02] * 3), _scores([32, 33, 34], [0.04] * 3)
-    b1, b2 = _scores([29, 30, 31], [0.04] * 3), _scores([29, 30, 31], [0.04] * 3)
+    flat = ["all"] * 3  # no view rings in the files
+    a1, a2 = _scores([30, 31, 32], [0.02] * 3, flat), _scores([32, 33, 34], [0.04] * 3, flat)
+    b1, b2 = _scores([29, 30, 31], [0.04] * 3, flat), _scores([29, 30, 31], [0.04] * 3, flat)
     res = C.compare([a1, a2], [b1, b2], n_resamples=200, seed=0)
     assert res["all"]["psnr_a_db"] == pytest.approx(32.0) and res["all"]["margin_db"] == pytest.approx(2.0)
     assert res["all"]["sam_ratio"] == pytest.approx(0.75)
     assert [p["margin_db"] for p in res["seed_pairs"]] == pytest.approx([1.0, 3.0])
     assert [p["sam_ratio"] for p in res["seed_pairs"]] == pytest.approx([0.5, 1.0])
+    no_rings = C.compare([a1], [b1], n_resamples=200)
+    assert no_rings["rings"] == {} and no_rings["all"]["n_views"] == 3
+    mixed = C.compare([_scores([1, 2, 3], [0.1] * 3, rings=["58", "all", "nadir"])],
+                      [_scores([1, 2, 2], [0.1] * 3, rings=["58", "all", "nadir"])], n_resamples=200)
+    assert list(mixed["rings"]) == ["58", "nadir", "all"]
     with pytest.raises(UserError, match="as many runs"):
         C.compare([a1, a2], [b1], n_resamples=200)
     with pytest.raises(UserError, match="different views"):

@@ -164,6 +164,14 @@ def compare_block(a: Scores, b: Scores, sel: np.ndarray, n_resamples: int, seed:
     return out
 
 
+def _ring_order(ring: str) -> tuple[int, float, str]:
+    """Numeric rings by zenith, then named ones, then "all" (views the file puts in no ring)."""
+    try:
+        return (0, float(ring), ring)
+    except ValueError:
+        return (2 if ring == "all" else 1, 0.0, ring)
+
+
 def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = 10000, seed: int = 0) -> dict:
     """Overall and per-ring comparison of A and B (seed means), and each seed pair's overall statistics."""
     require(len(runs_a) > 0 and len(runs_b) > 0, "give at least one run on each side", field="RUNS")
@@ -173,8 +181,9 @@ def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = 10000
     rings = np.array(a.rings)
     res = {"a": a.label, "b": b.label, "n_resamples": n_resamples, "seed": seed,
            "all": compare_block(a, b, np.arange(len(a.views)), n_resamples, seed), "rings": {}}
-    for ring in sorted(set(a.rings), key=lambda r: (r == "all", float(r) if r != "all" else 0.0)):
-        res["rings"][ring] = compare_block(a, b, np.flatnonzero(rings == ring), n_resamples, seed)
+    if set(a.rings) != {"all"}:  # a file without view rings: the "all" row says it all
+        for ring in sorted(set(a.rings), key=_ring_order):
+            res["rings"][ring] = compare_block(a, b, np.flatnonzero(rings == ring), n_resamples, seed)
     if len(runs_a) > 1 or len(runs_b) > 1:
         require(len(runs_a) == len(runs_b), "seeds are paired in the order given: give as many runs for A as "
                 f"for B (got {len(runs_a)} and {len(runs_b)})", field="RUNS")
