@@ -194,6 +194,16 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
         train(scene, tmp_path / "bad_ss", _cfg(stage1_steps=6, stage2_steps=6, supersample=2), progress=False,
               from_stage1=s1, log=None)
     assert err.value.field == "supersample" and str(s1) in str(err.value.file)
+    # a stage 1 written by a build with an option this one lacks: an input error naming the checkpoint
+    from brfgs.model.io import save
+
+    tensors, meta = load(s1)
+    meta["config"]["an_option_of_another_build"] = False
+    (tmp_path / "other_build").mkdir()
+    other = save(tmp_path / "other_build" / "stage1.safetensors", tensors, meta)
+    with pytest.raises(UserError, match="an_option_of_another_build") as err:
+        train(scene, tmp_path / "bad_build", replace(cfg, variant="sh"), progress=False, from_stage1=other, log=None)
+    assert err.value.field == "config" and str(other) in str(err.value.file)
 
 
 def test_streaming_and_patch_training(scene, tmp_path):

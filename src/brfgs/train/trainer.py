@@ -254,14 +254,14 @@ class Trainer:
         """A new run (another spectral variant) from the end of a decoupled run's stage 1."""
         st, cfg = self.state, self.cfg
         tensors, meta = st.load_checkpoint(path)
-        saved = TrainConfig.from_dict(meta["config"])
+        saved = TrainConfig.from_dict(meta["config"], source=str(path))  # another build's options: name the file
         at_end = meta["phase"] == Phase.STAGE1.value and int(meta["step"]) == saved.stage1_steps
         if saved.variant == "cir" or saved.joint or not at_end:
             raise UserError("not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)", file=path)
         if cfg.variant == "cir" or cfg.joint:
             raise UserError("--from-stage1 needs a decoupled spectral variant (brf, sh, neural)", field="from_stage1")
         if saved.latent_dim != cfg.latent_dim:
-            raise UserError("latent_dim differs from the stage-1 run", field="latent_dim")
+            raise UserError("latent_dim differs from the stage-1 run", file=path, field="latent_dim")
         for name in ("supersample", "antialias"):  # the pixel model the geometry was fitted with
             if getattr(saved, name) != getattr(cfg, name):
                 raise UserError(f"{name} is {getattr(cfg, name)}, but the stage-1 run fitted its geometry with "
