@@ -80,10 +80,10 @@ def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.nd
     f = scene.downscale
     x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, mat.shape[1], mat.shape[0])
     crop = (slice(y0, y0 + h // f * f), slice(x0, x0 + w // f * f))
-    mat = mat[crop]
+    mat, dep = mat[crop], None if dep is None else dep[crop]
     if mat.shape != (shape[0] * f, shape[1] * f):
         return None
-    return mat, None if dep is None or dep[crop].shape != mat.shape else dep[crop]
+    return mat, None if dep is None or dep.shape != mat.shape else dep
 
 
 def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:

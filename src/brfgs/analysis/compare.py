@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+from brfgs.analysis.output import SPLITS, metrics_file
 from brfgs.errors import UserError, require
 
-SPLITS = ("test", "validation")
 AGAINST = ("truth", "observed")
 MIN_VIEWS_FOR_INTERVAL = 3  # fewer views than this: the estimate only (a bootstrap of 1-2 views says nothing)
 
@@ -48,7 +48,7 @@ def metrics_path(run: Path, split: str) -> Path:
     """The metrics file of ``split`` in a run folder (a .json file is taken as it is)."""
     if run.suffix == ".json":
         return run
-    return run / ("metrics.json" if split == "test" else f"metrics_{split}.json")
+    return run / metrics_file(split)
 
 
 def _ring_of_views(data: dict, path: Path) -> dict[str, str]:
@@ -107,7 +107,7 @@ def read_scores(run: str | Path, split: str = "test", against: str = "truth") ->
     names = [r[0] for r in rows]
     require(len(set(names)) == len(names), "a view is listed twice", file=path, field=field)
     rows.sort(key=lambda r: r[0])
-    return Scores(str(path.parent if path.name.startswith("metrics") else path), [r[0] for r in rows],
+    return Scores(str(Path(run)), [r[0] for r in rows],
                   [r[1] for r in rows], np.array([r[2] for r in rows]), np.array([r[3] for r in rows]))
 
 

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from brfgs.analysis import by_material
 from brfgs.analysis import metrics as M
+from brfgs.analysis.output import SPLITS, metrics_file
 from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
@@ -26,8 +27,6 @@ from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
-
-SPLITS = ("test", "validation")
 
 
 def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "test"):
@@ -116,11 +115,6 @@ def _settings(lm: TrainedModel, scene, backend: str) -> dict:
         "train_timings_s": lm.meta.get("timings_s"),
         "eval_seconds": None,
     }
-
-
-def metrics_file(split: str = "test") -> str:
-    """Name of the metrics file of ``split`` in a run folder."""
-    return "metrics.json" if split == "test" else f"metrics_{split}.json"
 
 
 def ring_means(views: list[dict], rings: dict[str, str]) -> dict:

@@ -7,7 +7,14 @@ from pathlib import Path
 
 from brfgs.errors import UserError
 
-__all__ = ["check_output_dir", "prepare_output_dir", "run_folder", "safe_name", "Report"]
+__all__ = ["check_output_dir", "prepare_output_dir", "run_folder", "safe_name", "Report", "SPLITS", "metrics_file"]
+
+SPLITS = ("test", "validation")  # the held-out views a run is scored on
+
+
+def metrics_file(split: str = "test") -> str:
+    """Name of the metrics file of ``split`` in a run folder (brfgs evaluate writes it)."""
+    return "metrics.json" if split == "test" else f"metrics_{split}.json"
 
 
 def check_output_dir(out: Path, scene_root: Path | None = None, overwrite: bool = False,
