@@ -74,6 +74,18 @@ def test_ablate_training_cli(scene, tmp_path):
     assert "Joint optimization" in md and "BRF-GS (Full)" in md
     csv = (out / "table_training.csv").read_text().splitlines()
     assert len(csv) == 3 and "sam_truth" in csv[0]
+    # each row against its reference (joint against full): the margin and SAM ratio of the per-view scores
+    rows = {r["run"]: r for r in ablate_rows(out, "training")}
+    assert "vs" not in rows["full"] and rows["joint"]["vs"] == "full"
+    views = {n: json.loads((out / n / "metrics.json").read_text())["against"]["observed"]["views"]
+             for n in ("joint", "full")}
+    psnr = {n: sum(v["psnr"] for v in vs) / len(vs) for n, vs in views.items()}
+    sam = {n: sum(v["sam"] for v in vs) / len(vs) for n, vs in views.items()}
+    joint = rows["joint"]
+    assert joint["dpsnr_observed"] == pytest.approx(psnr["joint"] - psnr["full"], abs=1e-9)
+    assert joint["sam_ratio_observed"] == pytest.approx(sam["joint"] / sam["full"], rel=1e-9)
+    assert len(views["full"]) < 3 and "dpsnr_observed_ci95_lo" not in joint  # too few views for an interval
+    assert "| full |" in md and "ΔPSNR [95 %]" in md
 
 
 def test_every_training_option_is_on_the_command_line():
@@ -162,3 +174,51 @@ def test_bench_train_times_both_decoders_with_the_same_result(scene, tmp_path, c
     assert res["summary"]["fused"]["ms_per_step"]["stage2"] > 0 and res["speedup_vs_reference"]["stage2"] > 0
     assert (tmp_path / "runs" / "fused_0" / "model.safetensors").is_file()
     assert "speed-up vs reference" in capsys.readouterr().out
+
+
+def ablate_rows(out, study):
+    """The rows of OUT/table_<study>.csv as dicts of floats (strings where not a number)."""
+    import csv
+
+    def val(x):
+        try:
+            return float(x)
+        except ValueError:
+            return x
+    with open(out / f"table_{study}.csv", newline="") as fh:
+        return [{k: val(v) for k, v in r.items() if v != ""} for r in csv.DictReader(fh)]
+
+
+def test_ablation_rows_are_compared_with_their_reference_run():
+    from brfgs.workflows.ablate import reference_run
+
+    names = {"default", "no_flatness", "paper", "paper_flatness"}
+    assert reference_run("additions", "default", names) is None
+    assert reference_run("additions", "no_flatness", names) == "default"
+    assert reference_run("additions", "paper", names) == "default"
+    assert reference_run("additions", "paper_flatness", names) == "paper"
+    assert reference_run("additions", "paper_flatness", names - {"paper"}) is None
+    assert reference_run("kernels", "wo_iso", {"full", "wo_iso", "sh"}) == "full"
+    assert reference_run("bands", "bands_rgb", {"bands_rgb", "bands_efc-top3"}) == "bands_efc-top3"
+    assert reference_run("bands", "bands_rgb", {"bands_rgb"}) is None
+
+
+def test_ablation_row_intervals_are_brfgs_compare_intervals(tmp_path):
+    """versus() gives a row the margin, SAM ratio and 95 % intervals that brfgs compare gives the same pair."""
+    from brfgs.analysis.compare import compare, read_scores
+    from brfgs.workflows.ablate import versus
+
+    rng = torch.Generator().manual_seed(3)
+    for name, shift in (("full", 0.0), ("wo_iso", -0.8)):
+        views = [{"name": f"v{i:02d}", "psnr": 30 + shift + float(torch.randn(1, generator=rng)),
+                  "sam": 0.03 * (1 - shift / 4) + 0.002 * float(torch.rand(1, generator=rng))} for i in range(7)]
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.json").write_text(json.dumps({"against": {"truth": {"views": views}}}))
+    row = versus(tmp_path, "wo_iso", "full", "test", ["truth"])
+    ref = compare([read_scores(tmp_path / "wo_iso")], [read_scores(tmp_path / "full")])["all"]
+    assert row["vs"] == "full"
+    assert row["dpsnr_truth"] == pytest.approx(ref["margin_db"]) and row["sam_ratio_truth"] == pytest.approx(ref["sam_ratio"])
+    assert (row["dpsnr_truth_ci95_lo"], row["dpsnr_truth_ci95_hi"]) == pytest.approx(ref["margin_db_ci95"])
+    assert (row["sam_ratio_truth_ci95_lo"], row["sam_ratio_truth_ci95_hi"]) == pytest.approx(ref["sam_ratio_ci95"])
+    assert row["dpsnr_truth_ci95_lo"] < row["dpsnr_truth"] < row["dpsnr_truth_ci95_hi"] < 0
+    assert versus(tmp_path, "full", None, "test", ["truth"]) == {}

@@ -15,7 +15,8 @@ Studies (each run is an ordinary, resumable training run folder ``OUT/<run>``):
   ("paper": every addition off) and each addition added to it ("paper_<name>"). Additions that
   change stage 2 only reuse the stage 1 of "default" / "paper".
 Tables are written as ``OUT/table_<study>.md`` and ``.csv`` with the mean and per-view-ring
-metrics; they are against the observed test views and, when the scene has truth/, against the
+metrics, and each row's PSNR margin and SAM ratio against its reference run (:func:`reference_run`) with
+95 % intervals from a paired bootstrap over the views (as ``brfgs compare``); they are against the observed test views and, when the scene has truth/, against the
 clean truth. With ``--validation`` every run holds out its validation views and the tables
 ``OUT/table_<study>_validation.*`` score those (choose settings there, not on the test views).
 """
@@ -27,6 +28,9 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
+from brfgs.analysis.compare import compare_block, read_scores, require_same_views
 from brfgs.analysis.evaluate import evaluate_run, metrics_file
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
 from brfgs.data import atomic
@@ -39,6 +43,7 @@ from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
 STUDIES = ("kernels", "training", "bands", "baselines", "additions")
 FULL = ("iso", "vol", "geo", "spec")
+N_RESAMPLES = 10000  # bootstrap resamples of the views for each row's interval (seed 0, as brfgs compare)
 
 
 def _runs(study: str, base: TrainConfig) -> list[tuple[str, str, TrainConfig, str | None]]:
@@ -86,6 +91,37 @@ def _addition_runs(base: TrainConfig) -> list[tuple[str, str, TrainConfig, str |
     return unique
 
 
+def reference_run(study: str, name: str, names: set[str]) -> str | None:
+    """The run a table row is compared with: the full model (kernels, training, baselines), the paper's
+    EFC top-3 strategy (bands), or the run it differs from by one addition (additions: "no_X" and
+    "paper" against "default", "paper_X" against "paper"). None for the reference itself or when that
+    run is not in the study."""
+    if study == "additions":
+        ref = "paper" if name.startswith("paper_") else "default"
+    elif study == "bands":
+        ref = "bands_efc-top3"
+    else:
+        ref = "full"
+    return ref if ref in names and ref != name else None
+
+
+def versus(out: Path, name: str, ref: str | None, split: str, against: list[str]) -> dict:
+    """Row fields: the PSNR margin (dB) and SAM ratio of run ``name`` against run ``ref`` on the same held-out
+    views of ``split``, with 95 % paired-bootstrap intervals over the views (:mod:`brfgs.analysis.compare`)."""
+    if ref is None:
+        return {}
+    row: dict = {"vs": ref}
+    for ag in against:
+        a, b = read_scores(out / name, split, ag), read_scores(out / ref, split, ag)
+        require_same_views(b, a)
+        blk = compare_block(a, b, np.arange(len(a.views)), N_RESAMPLES, seed=0)
+        row[f"dpsnr_{ag}"], row[f"sam_ratio_{ag}"] = blk["margin_db"], blk["sam_ratio"]
+        for key, col in (("margin_db", f"dpsnr_{ag}"), ("sam_ratio", f"sam_ratio_{ag}")):
+            lo, hi = blk.get(f"{key}_ci95", (None, None))
+            row[f"{col}_ci95_lo"], row[f"{col}_ci95_hi"] = lo, hi
+    return row
+
+
 def _fmt(v, fmt):
     return "–" if v is None else format(v, fmt)
 
@@ -126,8 +162,10 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
             results[split][name] = json.loads(mfile.read_text())
     res: dict = {}
     for split in splits:
-        rows = [_row(study, out, name, label, results[split][name]) for name, label, _, _ in runs
-                if name in results[split]]
+        done = set(results[split])
+        rows = [_row(study, out, name, label, results[split][name])
+                | versus(out, name, reference_run(study, name, done), split, list(results[split][name]["against"]))
+                for name, label, _, _ in runs if name in done]
         key = "" if split == "test" else "_validation"
         res["rows" + key] = rows
         res["paths" + key] = write_tables(out, study + key, rows, scene_path)
@@ -162,6 +200,15 @@ def _rings(rows: list[dict], against: str) -> list[str]:
     return sorted({k[len(pre):] for r in rows for k in r if k.startswith(pre)}, key=float)
 
 
+def _with_ci(r: dict, col: str, fmt: str) -> str:
+    """'+0.12 [−0.30, +0.51]': a row's estimate against its reference and the 95 % interval."""
+    if r.get(col) is None:
+        return "–"
+    lo, hi = r.get(f"{col}_ci95_lo"), r.get(f"{col}_ci95_hi")
+    ci = "" if lo is None else f" [{format(lo, fmt)}, {format(hi, fmt)}]"
+    return format(r[col], fmt) + ci
+
+
 def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
     """OUT/table_<study>.csv (every column) and .md (the paper's columns and PSNR per view ring)."""
     cols = sorted({k for r in rows for k in r}, key=lambda k: (k not in ("run", "setting"), k))
@@ -176,10 +223,14 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
     lines = [f"# Study '{study}' on {Path(scene_path).name}", "",
              "PSNR/SSIM on CIR composites (dB, data range 1); SAM in radians over all bands; "
              "'observed' = the noisy held-out images, 'truth' = the clean simulated cubes; "
-             "'PSNR z°' = mean CIR PSNR of the held-out views of the view ring at zenith z.", ""]
+             "'PSNR z°' = mean CIR PSNR of the held-out views of the view ring at zenith z; "
+             "'ΔPSNR' (dB) and 'SAM ×' = the row against the run named in 'vs' on the same views, with 95 % "
+             "intervals from a paired bootstrap over the views (as `brfgs compare`; none for fewer than 3 views).",
+             ""]
     for against in refs:
         rings = _rings(rows, against)
-        head = ["Model setting", "PSNR↑", "SSIM↑", "SAM↓"] + [f"PSNR {r}°" for r in rings]
+        head = ["Model setting", "PSNR↑", "SSIM↑", "SAM↓"] + [f"PSNR {r}°" for r in rings] + [
+            "vs", "ΔPSNR [95 %]", "SAM × [95 %]"]
         if study == "bands":
             head += ["Detected feature points ↑", "Matching success rate ↑"]
         lines += [f"## Against {against}", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -187,6 +238,7 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
             cells = [r["setting"], _fmt(r.get(f"psnr_{against}"), ".2f"), _fmt(r.get(f"ssim_{against}"), ".3f"),
                      _fmt(r.get(f"sam_{against}"), ".4f")]
             cells += [_fmt(r.get(f"psnr_{against}_ring{g}"), ".2f") for g in rings]
+            cells += [r.get("vs", "–"), _with_ci(r, f"dpsnr_{against}", "+.2f"), _with_ci(r, f"sam_ratio_{against}", ".3f")]
             if study == "bands":
                 cells += [_fmt(r.get("detected_features_per_view"), ".0f"),
                           "–" if r.get("matching_success_rate") is None else f"{100 * r['matching_success_rate']:.1f}%"]
