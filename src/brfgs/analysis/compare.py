@@ -31,6 +31,7 @@ from brfgs.errors import UserError, require
 
 AGAINST = ("truth", "observed")
 MIN_VIEWS_FOR_INTERVAL = 3  # fewer views than this: the estimate only (a bootstrap of 1-2 views says nothing)
+N_RESAMPLES = 10000  # bootstrap resamples of the views (brfgs compare's default; brfgs ablate's rows)
 
 
 @dataclass
@@ -172,7 +173,7 @@ def _ring_order(ring: str) -> tuple[int, float, str]:
         return (2 if ring == "all" else 1, 0.0, ring)
 
 
-def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = 10000, seed: int = 0) -> dict:
+def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = N_RESAMPLES, seed: int = 0) -> dict:
     """Overall and per-ring comparison of A and B (seed means), and each seed pair's overall statistics."""
     require(len(runs_a) > 0 and len(runs_b) > 0, "give at least one run on each side", field="RUNS")
     require(n_resamples >= 100, f"expected at least 100, got {n_resamples}", field="--resamples")

@@ -15,10 +15,11 @@ Studies (each run is an ordinary, resumable training run folder ``OUT/<run>``):
   ("paper": every addition off) and each addition added to it ("paper_<name>"). Additions that
   change stage 2 only reuse the stage 1 of "default" / "paper".
 Tables are written as ``OUT/table_<study>.md`` and ``.csv`` with the mean and per-view-ring
-metrics, and each row's PSNR margin and SAM ratio against its reference run (:func:`reference_run`) with
-95 % intervals from a paired bootstrap over the views (as ``brfgs compare``); they are against the observed test views and, when the scene has truth/, against the
-clean truth. With ``--validation`` every run holds out its validation views and the tables
-``OUT/table_<study>_validation.*`` score those (choose settings there, not on the test views).
+metrics, and each row's PSNR margin and SAM ratio against its reference run (:func:`reference_run`)
+with 95 % intervals from a paired bootstrap over the views (as ``brfgs compare``); they are against
+the observed test views and, when the scene has truth/, against the clean truth. With ``--validation``
+every run holds out its validation views and the tables ``OUT/table_<study>_validation.*`` score those
+(choose settings there, not on the test views).
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.analysis.compare import compare_block, read_scores, require_same_views
+from brfgs.analysis.compare import (MIN_VIEWS_FOR_INTERVAL, N_RESAMPLES, compare_block, read_scores,
+                                    require_same_views)
 from brfgs.analysis.evaluate import evaluate_run, metrics_file
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
 from brfgs.data import atomic
@@ -43,7 +45,6 @@ from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
 STUDIES = ("kernels", "training", "bands", "baselines", "additions")
 FULL = ("iso", "vol", "geo", "spec")
-N_RESAMPLES = 10000  # bootstrap resamples of the views for each row's interval (seed 0, as brfgs compare)
 
 
 def _runs(study: str, base: TrainConfig) -> list[tuple[str, str, TrainConfig, str | None]]:
@@ -225,7 +226,8 @@ def write_tables(out: Path, study: str, rows: list[dict], scene_path) -> dict:
              "'observed' = the noisy held-out images, 'truth' = the clean simulated cubes; "
              "'PSNR z°' = mean CIR PSNR of the held-out views of the view ring at zenith z; "
              "'ΔPSNR' (dB) and 'SAM ×' = the row against the run named in 'vs' on the same views, with 95 % "
-             "intervals from a paired bootstrap over the views (as `brfgs compare`; none for fewer than 3 views).",
+             "intervals from a paired bootstrap over the views (as `brfgs compare`; none for fewer than "
+             f"{MIN_VIEWS_FOR_INTERVAL} views).",
              ""]
     for against in refs:
         rings = _rings(rows, against)
