@@ -154,3 +154,87 @@ def test_cli_compares_evaluated_runs(tmp_path, capsys):
     assert "as many runs" in capsys.readouterr().err
     assert main(["compare", str(better), str(run), "--split", "train"]) == 2
     assert "--split" in capsys.readouterr().err
+
+
+def _scene_pair(rng, n, shift_db, ratio, rings=None):
+    b = _scores(rng.normal(30, 2, n), rng.uniform(0.02, 0.04, n), rings)
+    a = _scores(b.psnr_db + shift_db + rng.normal(0, 0.3, n), b.sam_rad * ratio * rng.uniform(0.9, 1.1, n), rings)
+    return a, b
+
+
+def test_pooled_statistics_match_a_loop_over_the_stratified_draws():
+    from brfgs.analysis import compare_scenes as CS
+    rng = np.random.default_rng(5)
+    pairs = [_scene_pair(rng, n, d, r) for n, d, r in [(7, 0.5, 0.9), (5, -0.2, 1.1), (9, 0.1, 1.0)]]
+    res = CS.compare_scenes([a for a, _ in pairs], [b for _, b in pairs], n_resamples=400, seed=3)
+    per_m = [a.psnr_db.mean() - b.psnr_db.mean() for a, b in pairs]
+    per_r = [a.sam_rad.mean() / b.sam_rad.mean() for a, b in pairs]
+    assert res["all"]["margin_db"] == pytest.approx(np.mean(per_m))
+    assert res["all"]["sam_ratio"] == pytest.approx(np.prod(per_r) ** (1 / 3))
+    m_loop, r_loop = [], []
+    draws = [C.bootstrap_indices(len(a.views), 400, 3 + i) for i, (a, _) in enumerate(pairs)]  # scene i: seed + i
+    for k in range(400):  # float64 reference, one resample at a time
+        ms, rs = [], []
+        for (a, b), idx in zip(pairs, draws):
+            row = idx[k]
+            ms.append(sum(a.psnr_db[i] for i in row) / len(row) - sum(b.psnr_db[i] for i in row) / len(row))
+            rs.append(sum(a.sam_rad[i] for i in row) / sum(b.sam_rad[i] for i in row))
+        m_loop.append(sum(ms) / 3)
+        r_loop.append(float(np.prod(rs)) ** (1 / 3))
+    np.testing.assert_allclose(res["all"]["margin_db_ci95"], np.percentile(m_loop, [2.5, 97.5]), rtol=1e-12)
+    np.testing.assert_allclose(res["all"]["sam_ratio_ci95"], np.percentile(r_loop, [2.5, 97.5]), rtol=1e-12)
+    # each scene's row is brfgs compare's block with that scene's seed
+    for i, (a, b) in enumerate(pairs):
+        ref = C.compare_block(a, b, np.arange(len(a.views)), 400, 3 + i)
+        assert res["scenes"][i]["margin_db_ci95"] == ref["margin_db_ci95"]
+
+
+def test_pooled_rows_weigh_scenes_equally_and_tally_the_verdicts():
+    from brfgs.analysis import compare_scenes as CS
+    rings = ["18", "18", "58", "58", "58"]
+    b1 = _scores([30, 31, 25, 26, 24], [0.03, 0.02, 0.05, 0.04, 0.06], rings)
+    b2 = _scores([28, 29, 27, 22, 23, 21, 20, 24, 25], [0.03] * 9, ["18", "18"] + ["58"] * 7)
+    a1 = _scores(b1.psnr_db + 1.0, b1.sam_rad * 0.8, rings)   # better everywhere by a constant
+    a2 = _scores(b2.psnr_db - 0.5, b2.sam_rad * 1.25, b2.rings)  # worse everywhere by a constant
+    res = CS.compare_scenes([a1, a2], [b1, b2], n_resamples=300)
+    assert res["all"]["margin_db"] == pytest.approx(0.25)  # (1.0 − 0.5) / 2, not weighted by views
+    assert res["all"]["sam_ratio"] == pytest.approx(1.0)  # sqrt(0.8 × 1.25)
+    np.testing.assert_allclose(res["all"]["margin_db_ci95"], [0.25, 0.25])
+    assert [s["psnr_verdict"] for s in res["scenes"]] == [1, -1]  # better beyond the views' noise, worse
+    assert [s["sam_verdict"] for s in res["scenes"]] == [1, -1]
+    assert list(res["rings"]) == ["18", "58"] and res["rings"]["58"]["n_views"] == 10
+    lines = CS.report_lines(res)
+    assert any(line.startswith("| **mean of 2 scenes** | 14 |") for line in lines)
+    # a scene with one view in a ring gives the pooled ring no interval; a ring one scene lacks is left out
+    c = _scores([30, 31, 32, 29], [0.03] * 4, ["18", "18", "18", "38"])
+    res = CS.compare_scenes([a1, _scores(c.psnr_db + 1, c.sam_rad, c.rings)], [b1, c], n_resamples=300)
+    assert list(res["rings"]) == ["18"]
+    with pytest.raises(UserError, match="as many runs"):
+        CS.compare_scenes([a1, a2], [b1])
+    with pytest.raises(UserError, match="two or more scenes"):
+        CS.compare_scenes([a1], [b1])
+    with pytest.raises(UserError, match="different views"):
+        CS.compare_scenes([a1, a2], [b2, b1])
+
+
+def test_cli_pools_scenes(tmp_path, capsys):
+    from brfgs.cli import main
+    rng = np.random.default_rng(2)
+    runs = {}
+    for scene in ("s1", "s2", "s3"):
+        base = [(f"{scene}_v{i}", "18" if i < 4 else "58", float(rng.normal(30, 2)), float(rng.uniform(0.02, 0.04)))
+                for i in range(7)]
+        runs[scene] = (_write_run(tmp_path / scene / "a", _metrics([(n, r, p + 0.4, s * 0.9) for n, r, p, s in base]),
+                                  "metrics_validation.json"),
+                       _write_run(tmp_path / scene / "b", _metrics(base), "metrics_validation.json"))
+    a = ",".join(str(v[0]) for v in runs.values())
+    b = ",".join(str(v[1]) for v in runs.values())
+    capsys.readouterr()
+    assert main(["compare", a, b, "--scenes", "--split", "validation", "--json", str(tmp_path / "p.json")]) == 0
+    out = capsys.readouterr().out
+    res = json.loads((tmp_path / "p.json").read_text())
+    assert res["all"]["margin_db"] == pytest.approx(0.4) and res["all"]["sam_ratio"] == pytest.approx(0.9)
+    assert len(res["scenes"]) == 3 and res["split"] == "validation"
+    assert "**mean of 3 scenes** | 21 |" in out and "mean, 58° ring" in out and "on 3/0/0 scenes" in out
+    assert main(["compare", a, str(runs["s1"][1]), "--scenes", "--split", "validation"]) == 2
+    assert "as many runs" in capsys.readouterr().err

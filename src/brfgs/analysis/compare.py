@@ -165,7 +165,7 @@ def compare_block(a: Scores, b: Scores, sel: np.ndarray, n_resamples: int, seed:
     return out
 
 
-def _ring_order(ring: str) -> tuple[int, float, str]:
+def ring_order(ring: str) -> tuple[int, float, str]:
     """Numeric rings by zenith, then named ones, then "all" (views the file puts in no ring)."""
     try:
         return (0, float(ring), ring)
@@ -183,7 +183,7 @@ def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = N_RES
     res = {"a": a.label, "b": b.label, "n_resamples": n_resamples, "seed": seed,
            "all": compare_block(a, b, np.arange(len(a.views)), n_resamples, seed), "rings": {}}
     if set(a.rings) != {"all"}:  # a file without view rings: the "all" row says it all
-        for ring in sorted(set(a.rings), key=_ring_order):
+        for ring in sorted(set(a.rings), key=ring_order):
             res["rings"][ring] = compare_block(a, b, np.flatnonzero(rings == ring), n_resamples, seed)
     if len(runs_a) > 1 or len(runs_b) > 1:
         require(len(runs_a) == len(runs_b), "seeds are paired in the order given: give as many runs for A as "
@@ -194,21 +194,28 @@ def compare(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = N_RES
     return res
 
 
-def _ci(block: dict, key: str, fmt: str) -> str:
+def ci_text(block: dict, key: str, fmt: str) -> str:
+    """A block's 95 % interval of ``key`` as "[lo, hi]", or "–" where it has none."""
     ci = block.get(f"{key}_ci95")
     return f"[{format(ci[0], fmt)}, {format(ci[1], fmt)}]" if ci else "–"
 
 
+TABLE_HEAD = ["| {first} | n | A PSNR (dB) / SAM (rad) | B PSNR (dB) / SAM (rad) | margin A − B (dB) | 95 % interval "
+              "| SAM ratio A / B | 95 % interval |", "|---|---|---|---|---|---|---|---|"]
+
+
+def table_row(name: str, blk: dict) -> str:
+    """One markdown row of a comparison block (compare_block's keys)."""
+    return (f"| {name} | {blk['n_views']} | {blk['psnr_a_db']:.2f} / {blk['sam_a_rad']:.4f} "
+            f"| {blk['psnr_b_db']:.2f} / {blk['sam_b_rad']:.4f} | {blk['margin_db']:+.2f} "
+            f"| {ci_text(blk, 'margin_db', '+.2f')} | {blk['sam_ratio']:.3f} | {ci_text(blk, 'sam_ratio', '.3f')} |")
+
+
 def report_lines(res: dict) -> list[str]:
     """The comparison as a markdown table (one row for all views, one per ring) and the seed pairs."""
-    lines = [f"A: {res['a']}", f"B: {res['b']}", "",
-             "| views | n | A PSNR (dB) / SAM (rad) | B PSNR (dB) / SAM (rad) | margin A − B (dB) | 95 % interval "
-             "| SAM ratio A / B | 95 % interval |", "|---|---|---|---|---|---|---|---|"]
+    lines = [f"A: {res['a']}", f"B: {res['b']}", "", TABLE_HEAD[0].format(first="views"), TABLE_HEAD[1]]
     rows = [("all", res["all"])] + [(f"{r}°" if r != "all" else r, blk) for r, blk in res["rings"].items()]
-    for name, blk in rows:
-        lines.append(f"| {name} | {blk['n_views']} | {blk['psnr_a_db']:.2f} / {blk['sam_a_rad']:.4f} "
-                     f"| {blk['psnr_b_db']:.2f} / {blk['sam_b_rad']:.4f} | {blk['margin_db']:+.2f} "
-                     f"| {_ci(blk, 'margin_db', '+.2f')} | {blk['sam_ratio']:.3f} | {_ci(blk, 'sam_ratio', '.3f')} |")
+    lines += [table_row(name, blk) for name, blk in rows]
     lines += ["", f"Intervals: paired bootstrap over the views ({res['n_resamples']} resamples, seed {res['seed']}; "
               f"none for fewer than {MIN_VIEWS_FOR_INTERVAL} views)."]
     for i, pair in enumerate(res.get("seed_pairs", [])):

@@ -18,27 +18,33 @@ def register(app: typer.Typer) -> None:
     @app.command("compare")
     def compare_cmd(
         a: str = typer.Argument(..., metavar="A", help="Run folder of model A (or several, comma-separated: seeds of one "
-                                "configuration), evaluated by brfgs train/evaluate."),
+                                "configuration, or with --scenes one run per scene), evaluated by brfgs train/evaluate."),
         b: str = typer.Argument(..., metavar="B", help="Run folder(s) of model B, the reference (same scene and split; "
-                                "seeds paired with A's in the order given)."),
+                                "seeds, or with --scenes scenes, paired with A's in the order given)."),
         split: str = typer.Option("test", "--split", help="test (metrics.json) or validation "
                                   "(metrics_validation.json)."),
         against: str = typer.Option("truth", "--against", help="truth (simulated scenes) or observed."),
         resamples: int = typer.Option(10000, "--resamples", help="Bootstrap resamples of the views."),
         seed: int = typer.Option(0, "--seed", help="Seed of the bootstrap."),
         json_out: Path = typer.Option(None, "--json", help="Also write the comparison to this JSON file."),
+        scenes: bool = typer.Option(False, "--scenes", help="A and B list one run per scene, paired in the order "
+                                    "given: each scene's row, and the mean over scenes of the margins (geometric "
+                                    "mean of the SAM ratios) with a bootstrap of every scene's views, overall and "
+                                    "per ring (a setting chosen over several scenes at once)."),
     ) -> None:
         """CIR PSNR margin (A − B, dB) and SAM ratio (A / B) over all views and per view ring, with 95 %
         intervals from a paired bootstrap over the views, and the range over seed pairs when several runs
-        are given per side."""
-        from brfgs.analysis.compare import compare, read_scores, report_lines
+        are given per side; with --scenes, per scene and pooled over the scenes."""
+        from brfgs.analysis import compare as C
+        from brfgs.analysis import compare_scenes as CS
         from brfgs.data.atomic import write_json
 
-        runs_a = [read_scores(r, split, against) for r in _runs(a)]
-        runs_b = [read_scores(r, split, against) for r in _runs(b)]
-        res = compare(runs_a, runs_b, n_resamples=resamples, seed=seed)
+        runs_a = [C.read_scores(r, split, against) for r in _runs(a)]
+        runs_b = [C.read_scores(r, split, against) for r in _runs(b)]
+        how = CS if scenes else C
+        res = (CS.compare_scenes if scenes else C.compare)(runs_a, runs_b, n_resamples=resamples, seed=seed)
         res.update(split=split, against=against)
-        for line in report_lines(res):
+        for line in how.report_lines(res):
             typer.echo(line)
         if json_out is not None:
             typer.echo(f"comparison: {write_json(json_out, res)}")
