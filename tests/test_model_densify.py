@@ -49,6 +49,24 @@ def test_named_adam_matches_torch_adam():
     assert torch.allclose(x, y, atol=1e-6)
 
 
+def test_named_adam_weight_decay_matches_torch_adamw():
+    torch.manual_seed(1)
+    x = (torch.randn(7, 3) * 5).requires_grad_(True)
+    z = x.detach().clone().requires_grad_(True)  # no decay on this one
+    y = x.detach().clone().requires_grad_(True)
+    ours = NamedAdam({"x": 0.2, "z": 0.2}, weight_decay={"x": 0.5})
+    ref = torch.optim.AdamW([y], lr=0.2, eps=1e-15, weight_decay=0.5)
+    for _ in range(20):
+        for p in (x, y, z):
+            p.grad = None
+        for p in (x, y, z):
+            (torch.sin(p) * 1e-3).sum().backward()  # a weak gradient: the decay dominates
+        ours.step({"x": x, "z": z})
+        ref.step()
+    assert torch.allclose(x, y, atol=1e-5)
+    assert x.detach().abs().mean() < 0.5 * z.detach().abs().mean()  # decayed towards 0; z only drifts
+
+
 def test_refine_clones_splits_prunes_and_keeps_optimiser_rows_aligned():
     m = _model()
     n = m.n

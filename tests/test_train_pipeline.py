@@ -172,8 +172,15 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
     tb, _ = load(again)
     assert ta.keys() == tb.keys()
     assert not [k for k in ta if not torch.equal(ta[k], tb[k])]
+    from dataclasses import replace
+
+    # --wd-spec: z_spec x (1 - lr_spec x wd_spec) before each step; 1 / lr_spec keeps only the last step
+    decayed, _ = load(train(scene, tmp_path / "wd", replace(cfg, wd_spec=1.0 / cfg.lr_spec), progress=False,
+                            from_stage1=s1, log=None))
+    assert torch.equal(decayed["param.means"], ta["param.means"])
+    step_max = cfg.lr_spec * 1.05  # one Adam step of a few moves an element by at most ~1.015 lr
+    assert decayed["param.z_spec"].abs().max() <= step_max < ta["param.z_spec"].abs().max()
     for variant in ("sh", "neural"):
-        from dataclasses import replace
 
         p = train(scene, tmp_path / variant, replace(cfg, variant=variant), progress=False, from_stage1=s1, log=None)
         lm = TrainedModel.load(p)

@@ -2,7 +2,8 @@
 
 3DGS densification changes the number of Gaussians, so the optimiser state must follow
 row edits; keeping the state as plain named tensors also makes checkpoints (safetensors,
-tensors only) and exact resume simple. Update rule = torch.optim.Adam (no weight decay).
+tensors only) and exact resume simple. Update rule = torch.optim.Adam, or torch.optim.AdamW's
+decoupled weight decay for the names in ``weight_decay``.
 """
 
 from __future__ import annotations
@@ -11,10 +12,13 @@ import torch
 
 
 class NamedAdam:
-    """Adam on a dict ``{name: tensor}``; per-name learning rates (``lrs``)."""
+    """Adam on a dict ``{name: tensor}``; per-name learning rates (``lrs``) and decoupled weight
+    decays (``weight_decay``: p ← p·(1 − lr·wd) before the Adam step, as AdamW)."""
 
-    def __init__(self, lrs: dict[str, float], betas=(0.9, 0.999), eps: float = 1e-15):
+    def __init__(self, lrs: dict[str, float], betas=(0.9, 0.999), eps: float = 1e-15,
+                 weight_decay: dict[str, float] | None = None):
         self.lrs = dict(lrs)
+        self.weight_decay = dict(weight_decay or {})
         self.b1, self.b2 = betas
         self.eps = eps
         self.m: dict[str, torch.Tensor] = {}
@@ -36,6 +40,9 @@ class NamedAdam:
             t = self.t[name] + 1
             self.t[name] = t
             m, v = self.m[name], self.v[name]
+            wd = self.weight_decay.get(name, 0.0)
+            if wd > 0:
+                p.mul_(1 - lr * wd)
             m.mul_(self.b1).add_(g, alpha=1 - self.b1)
             v.mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
             bc1 = 1 - self.b1**t

@@ -110,6 +110,9 @@ class TrainConfig:
     lr_latent: float = _opt(1e-2, "Learning rate of the latent kernel weights (z_iso, z_vol, z_geo), SH and features.")
     lr_spec: float = _opt(0.2, "Learning rate of the specular latent z_spec (20x lr_latent: a glint needs a latent an "
                           "order of magnitude larger, seen in few views; docs/results.md, Session 4).")
+    wd_spec: float = _opt(0.0, "Decoupled weight decay of z_spec (AdamW: z_spec x (1 - lr_spec x wd_spec) per "
+                          "step): a specular latent that no glint holds up decays towards 0 instead of drifting "
+                          "at the high specular rate (0 = off).")
     lr_rho: float = _opt(1e-2, "Learning rate of the roughness.")
     lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
     lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")

@@ -49,3 +49,9 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
         lrs.pop("bg_colors", None)
         lrs.pop("bg_latent", None)
     return lrs
+
+
+def weight_decays(cfg: TrainConfig, phase: Phase) -> dict[str, float]:
+    """{tensor name: decoupled weight decay} of the phase (NamedAdam, as AdamW): the specular latent's
+    ``wd_spec``, so that a z_spec that no glint holds up decays towards 0 instead of drifting."""
+    return {"z_spec": cfg.wd_spec} if phase.fits_head and cfg.wd_spec > 0 else {}
