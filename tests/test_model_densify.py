@@ -67,6 +67,29 @@ def test_named_adam_weight_decay_matches_torch_adamw():
     assert x.detach().abs().mean() < 0.5 * z.detach().abs().mean()  # decayed towards 0; z only drifts
 
 
+def test_named_adam_shrink_is_a_soft_threshold_after_the_adam_step():
+    x = (torch.randn(50, 4, generator=torch.Generator().manual_seed(99)) * 0.01).requires_grad_(True)
+    y = x.detach().clone().requires_grad_(True)  # the same start, plain Adam
+    start = x.detach().clone()
+    ours = NamedAdam({"x": 0.05}, shrink={"x": 0.3})
+    plain = NamedAdam({"y": 0.05})
+    for k in range(30):
+        g = torch.randn(50, 4, generator=torch.Generator().manual_seed(k))  # pure noise: no direction
+        g[:10] = 1.0  # ten rows with a steady gradient, as a glint's latent
+        x.grad, y.grad = g.clone(), g.clone()
+        plain.step({"y": y})
+        ours.step({"x": x})
+        if k == 0:  # from the same state: the Adam step, then sign(p) max(|p| - lr s, 0) (float64 reference)
+            stepped = y.detach().double()
+            expect = stepped.sign() * (stepped.abs() - 0.05 * 0.3).clamp_min(0)
+            assert torch.allclose(x.detach().double(), expect, atol=1e-7)
+    steady, noise = x.detach()[:10], x.detach()[10:]
+    # the steady rows keep moving at 0.7 of Adam's rate (30 steps x 0.05 x (1 - 0.3) = 1.05)
+    assert torch.allclose(steady - start[:10], torch.full_like(steady, -1.05), atol=1e-3)
+    assert torch.allclose(y.detach()[:10] - start[:10], torch.full_like(steady, -1.5), atol=1e-3)
+    assert noise.abs().mean() < 0.5 * y.detach()[10:].abs().mean()  # the noise rows are held near 0
+
+
 def test_refine_clones_splits_prunes_and_keeps_optimiser_rows_aligned():
     m = _model()
     n = m.n

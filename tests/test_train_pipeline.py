@@ -180,6 +180,10 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
     assert torch.equal(decayed["param.means"], ta["param.means"])
     step_max = cfg.lr_spec * 1.05  # one Adam step of a few moves an element by at most ~1.015 lr
     assert decayed["param.z_spec"].abs().max() <= step_max < ta["param.z_spec"].abs().max()
+    # --spec-shrink: soft threshold lr_spec x spec_shrink after each step; a huge one holds z_spec at 0
+    held, _ = load(train(scene, tmp_path / "shrink", replace(cfg, spec_shrink=1e6), progress=False, from_stage1=s1,
+                         log=None))
+    assert not held["param.z_spec"].any() and held["param.z_iso"].any()
     for variant in ("sh", "neural"):
 
         p = train(scene, tmp_path / variant, replace(cfg, variant=variant), progress=False, from_stage1=s1, log=None)

@@ -113,6 +113,9 @@ class TrainConfig:
     wd_spec: float = _opt(0.0, "Decoupled weight decay of z_spec (AdamW: z_spec x (1 - lr_spec x wd_spec) per "
                           "step): a specular latent that no glint holds up decays towards 0 instead of drifting "
                           "at the high specular rate (0 = off).")
+    spec_shrink: float = _opt(0.0, "Soft threshold of z_spec after each step, in units of lr_spec (the proximal step "
+                              "of an L1 penalty): a specular latent grows only where its Adam steps keep one "
+                              "direction, as at a glint, and does not drift elsewhere (0 = off).")
     lr_rho: float = _opt(1e-2, "Learning rate of the roughness.")
     lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
     lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")

@@ -51,6 +51,12 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     return lrs
 
 
+def shrinks(cfg: TrainConfig, phase: Phase) -> dict[str, float]:
+    """{tensor name: soft threshold per step, in units of its learning rate} of the phase (NamedAdam):
+    the specular latent's ``spec_shrink``, so that z_spec grows only where its steps keep a direction."""
+    return {"z_spec": cfg.spec_shrink} if phase.fits_head and cfg.spec_shrink > 0 else {}
+
+
 def weight_decays(cfg: TrainConfig, phase: Phase) -> dict[str, float]:
     """{tensor name: decoupled weight decay} of the phase (NamedAdam, as AdamW): the specular latent's
     ``wd_spec``, so that a z_spec that no glint holds up decays towards 0 instead of drifting."""
