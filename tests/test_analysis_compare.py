@@ -19,13 +19,13 @@ def _scores(psnr, sam, rings=None, views=None, label="run"):
     return C.Scores(label, views, rings or ["18"] * n, np.asarray(psnr, float), np.asarray(sam, float))
 
 
-def _metrics(views: list[tuple[str, str, float, float]], truth: bool = True) -> dict:
+def _metrics(views: list[tuple[str, str, float, float]], truth: bool = True, scene: str = "s") -> dict:
     """A metrics.json in the schema of conventions.md: (name, ring, psnr, sam) per view."""
     rings: dict = {}
     for name, ring, _, _ in views:
         rings.setdefault(ring, {"train": [], "test": []})["test"].append(name)
     block = {"mean": {}, "views": [{"name": n, "psnr": p, "ssim": 0.9, "sam": s} for n, _, p, s in views]}
-    out = {"scene": "s", "model": "BRF-GS", "split": {"rings": rings}, "against": {"observed": copy.deepcopy(block)}}
+    out = {"scene": scene, "model": "BRF-GS", "split": {"rings": rings}, "against": {"observed": copy.deepcopy(block)}}
     if truth:
         out["against"]["truth"] = block
     return out
@@ -104,7 +104,7 @@ def test_read_scores_maps_views_to_rings_and_names_bad_fields(tmp_path):
     views = [("v2_z58", "58", 25.0, 0.05), ("v1_z18", "18", 32.0, 0.02), ("v3_z18", "18", 31.0, 0.03)]
     run = _write_run(tmp_path / "run", _metrics(views))
     s = C.read_scores(run)
-    assert s.views == ["v1_z18", "v2_z58", "v3_z18"] and s.rings == ["18", "58", "18"]
+    assert s.views == ["v1_z18", "v2_z58", "v3_z18"] and s.rings == ["18", "58", "18"] and s.scene == "s"
     assert list(s.psnr_db) == [32.0, 25.0, 31.0]
     with pytest.raises(UserError, match="metrics_validation.json"):
         C.read_scores(run, split="validation")
@@ -222,11 +222,11 @@ def test_cli_pools_scenes(tmp_path, capsys):
     rng = np.random.default_rng(2)
     runs = {}
     for scene in ("s1", "s2", "s3"):
-        base = [(f"{scene}_v{i}", "18" if i < 4 else "58", float(rng.normal(30, 2)), float(rng.uniform(0.02, 0.04)))
-                for i in range(7)]
-        runs[scene] = (_write_run(tmp_path / scene / "a", _metrics([(n, r, p + 0.4, s * 0.9) for n, r, p, s in base]),
-                                  "metrics_validation.json"),
-                       _write_run(tmp_path / scene / "b", _metrics(base), "metrics_validation.json"))
+        base = [(f"v{i}", "18" if i < 4 else "58", float(rng.normal(30, 2)), float(rng.uniform(0.02, 0.04)))
+                for i in range(7)]  # the simulator names the views alike in every scene
+        runs[scene] = (_write_run(tmp_path / scene / "a", _metrics([(n, r, p + 0.4, s * 0.9) for n, r, p, s in base],
+                                                                   scene=scene), "metrics_validation.json"),
+                       _write_run(tmp_path / scene / "b", _metrics(base, scene=scene), "metrics_validation.json"))
     a = ",".join(str(v[0]) for v in runs.values())
     b = ",".join(str(v[1]) for v in runs.values())
     capsys.readouterr()
@@ -238,3 +238,12 @@ def test_cli_pools_scenes(tmp_path, capsys):
     assert "**mean of 3 scenes** | 21 |" in out and "mean, 58° ring" in out and "on 3/0/0 scenes" in out
     assert main(["compare", a, str(runs["s1"][1]), "--scenes", "--split", "validation"]) == 2
     assert "as many runs" in capsys.readouterr().err
+    # a pair from two scenes (same view names), or one scene given twice: an input error naming it
+    swapped = f"{runs['s2'][1]},{runs['s1'][1]},{runs['s3'][1]}"
+    assert main(["compare", a, swapped, "--scenes", "--split", "validation"]) == 2
+    assert "different scenes" in capsys.readouterr().err
+    twice = f"{runs['s1'][0]},{runs['s1'][0]}"
+    assert main(["compare", twice, f"{runs['s1'][1]},{runs['s1'][1]}", "--scenes", "--split", "validation"]) == 2
+    assert "same scene (s1)" in capsys.readouterr().err
+    assert main(["compare", str(runs["s1"][0]), str(runs["s2"][1]), "--split", "validation"]) == 2
+    assert "different scenes" in capsys.readouterr().err

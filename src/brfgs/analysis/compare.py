@@ -43,6 +43,8 @@ class Scores:
     rings: list[str]      # [V] view ring of each view ("18", "58", ...; "all" when the file has none)
     psnr_db: np.ndarray   # [V] CIR PSNR (dB)
     sam_rad: np.ndarray   # [V] mean spectral angle (rad)
+    scene: str = ""       # the scene's name in the metrics file ("" where it has none)
+    scene_root: str = ""  # the scene folder it was evaluated on ("" where the file has none)
 
 
 def metrics_path(run: Path, split: str) -> Path:
@@ -108,12 +110,18 @@ def read_scores(run: str | Path, split: str = "test", against: str = "truth") ->
     names = [r[0] for r in rows]
     require(len(set(names)) == len(names), "a view is listed twice", file=path, field=field)
     rows.sort(key=lambda r: r[0])
-    return Scores(str(Path(run)), [r[0] for r in rows],
-                  [r[1] for r in rows], np.array([r[2] for r in rows]), np.array([r[3] for r in rows]))
+    scene, root = data.get("scene"), data.get("scene_root")
+    return Scores(str(Path(run)), [r[0] for r in rows], [r[1] for r in rows], np.array([r[2] for r in rows]),
+                  np.array([r[3] for r in rows]), scene if isinstance(scene, str) else "",
+                  root if isinstance(root, str) else "")
 
 
 def require_same_views(a: Scores, b: Scores) -> None:
-    """Both runs must have scored the same views (the same split of the same scene)."""
+    """Both runs must have scored the same views (the same split of the same scene). The simulator
+    names views alike in every scene, so the scenes' names are compared too where both files give one."""
+    if a.scene and b.scene and a.scene != b.scene:
+        raise UserError(f"the runs were scored on different scenes ({a.label}: {a.scene!r}; {b.label}: "
+                        f"{b.scene!r}); compare runs of the same scene", file=b.label, field="scene")
     if a.views != b.views:
         only_a = sorted(set(a.views) - set(b.views))[:3]
         only_b = sorted(set(b.views) - set(a.views))[:3]
@@ -127,7 +135,8 @@ def seed_mean(runs: list[Scores]) -> Scores:
     for other in runs[1:]:
         require_same_views(runs[0], other)
     return Scores(",".join(r.label for r in runs), runs[0].views, runs[0].rings,
-                  np.mean([r.psnr_db for r in runs], axis=0), np.mean([r.sam_rad for r in runs], axis=0))
+                  np.mean([r.psnr_db for r in runs], axis=0), np.mean([r.sam_rad for r in runs], axis=0),
+                  runs[0].scene, runs[0].scene_root)
 
 
 def bootstrap_indices(n_views: int, n_resamples: int, seed: int) -> np.ndarray:

@@ -92,6 +92,11 @@ def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int 
     require(n_resamples >= 100, f"expected at least 100, got {n_resamples}", field="--resamples")
     for a, b in pairs:
         require_same_views(a, b)
+    ids = [a.scene_root or a.scene for a in runs_a]
+    if all(ids):
+        dup = sorted({x for x in ids if ids.count(x) > 1})
+        require(not dup, f"two pairs come from the same scene ({', '.join(dup)}); --scenes pools one pair per "
+                "scene (give seeds of one scene without --scenes)", field="RUNS")
     scenes = []
     for i, (a, b) in enumerate(pairs):
         blk = compare_block(a, b, np.arange(len(a.views)), n_resamples, seed + i)
