@@ -52,11 +52,10 @@ def pooled_block(parts: list[tuple[Scores, Scores, np.ndarray]], n_resamples: in
     log_ratios = np.log([sam_ratio(a.sam_rad[s], b.sam_rad[s]) for a, b, s in parts])  # [S]
     n_views = [len(s) for _, _, s in parts]
     out = {"n_scenes": len(parts), "n_views": int(sum(n_views)),
-           "psnr_a_db": float(np.mean([a.psnr_db[s].mean() for a, _, s in parts])),
-           "psnr_b_db": float(np.mean([b.psnr_db[s].mean() for _, b, s in parts])),
-           "sam_a_rad": float(np.mean([a.sam_rad[s].mean() for a, _, s in parts])),
-           "sam_b_rad": float(np.mean([b.sam_rad[s].mean() for _, b, s in parts])),
            "margin_db": float(margins.mean()), "sam_ratio": float(np.exp(log_ratios.mean()))}
+    for side, k in (("a", 0), ("b", 1)):  # each side's mean over scenes of its per-scene mean scores
+        out[f"psnr_{side}_db"] = float(np.mean([p[k].psnr_db[p[2]].mean() for p in parts]))
+        out[f"sam_{side}_rad"] = float(np.mean([p[k].sam_rad[p[2]].mean() for p in parts]))
     if min(n_views) >= MIN_VIEWS_PER_SCENE and sum(n_views) >= MIN_VIEWS_FOR_INTERVAL:
         m_r = np.zeros(n_resamples)   # [R] sum over scenes of the resampled margins
         lr_r = np.zeros(n_resamples)  # [R] sum over scenes of the resampled log SAM ratios
@@ -69,18 +68,11 @@ def pooled_block(parts: list[tuple[Scores, Scores, np.ndarray]], n_resamples: in
     return out
 
 
-def _verdict(block: dict) -> tuple[int, int]:
-    """(+1 / −1 / 0 for A's PSNR beyond the views' noise, the same for A's SAM: +1 = A better)."""
-    def sign(ci, better_above: float, higher_is_better: bool) -> int:
-        if not ci:
-            return 0
-        lo, hi = ci
-        if lo > better_above:
-            return 1 if higher_is_better else -1
-        if hi < better_above:
-            return -1 if higher_is_better else 1
+def _beyond_noise(ci: tuple[float, float] | None, null: float) -> int:
+    """+1 where a 95 % interval lies above ``null``, −1 where below, 0 where it spans it or is missing."""
+    if not ci:
         return 0
-    return sign(block.get("margin_db_ci95"), 0.0, True), sign(block.get("sam_ratio_ci95"), 1.0, False)
+    return 1 if ci[0] > null else -1 if ci[1] < null else 0
 
 
 def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = N_RESAMPLES, seed: int = 0) -> dict:
@@ -100,8 +92,9 @@ def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int 
     scenes = []
     for i, (a, b) in enumerate(pairs):
         blk = compare_block(a, b, np.arange(len(a.views)), n_resamples, seed + i)
-        psnr_sign, sam_sign = _verdict(blk)
-        scenes.append({"a": a.label, "b": b.label, **blk, "psnr_verdict": psnr_sign, "sam_verdict": sam_sign})
+        scenes.append({"a": a.label, "b": b.label, **blk,  # verdicts: +1 = A better beyond the views' noise
+                       "psnr_verdict": _beyond_noise(blk.get("margin_db_ci95"), 0.0),
+                       "sam_verdict": -_beyond_noise(blk.get("sam_ratio_ci95"), 1.0)})
     res = {"scenes": scenes, "n_resamples": n_resamples, "seed": seed,
            "all": pooled_block([(a, b, np.arange(len(a.views))) for a, b in pairs], n_resamples, seed),
            "rings": {}}

@@ -41,10 +41,10 @@ def register(app: typer.Typer) -> None:
 
         runs_a = [C.read_scores(r, split, against) for r in _runs(a)]
         runs_b = [C.read_scores(r, split, against) for r in _runs(b)]
-        how = CS if scenes else C
-        res = (CS.compare_scenes if scenes else C.compare)(runs_a, runs_b, n_resamples=resamples, seed=seed)
+        run, report = (CS.compare_scenes, CS.report_lines) if scenes else (C.compare, C.report_lines)
+        res = run(runs_a, runs_b, n_resamples=resamples, seed=seed)
         res.update(split=split, against=against)
-        for line in how.report_lines(res):
+        for line in report(res):
             typer.echo(line)
         if json_out is not None:
             typer.echo(f"comparison: {write_json(json_out, res)}")

@@ -51,13 +51,11 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     return lrs
 
 
-def shrinks(cfg: TrainConfig, phase: Phase) -> dict[str, float]:
-    """{tensor name: soft threshold per step, in units of its learning rate} of the phase (NamedAdam):
-    the specular latent's ``spec_shrink``, so that z_spec grows only where its steps keep a direction."""
-    return {"z_spec": cfg.spec_shrink} if phase.fits_head and cfg.spec_shrink > 0 else {}
-
-
-def weight_decays(cfg: TrainConfig, phase: Phase) -> dict[str, float]:
-    """{tensor name: decoupled weight decay} of the phase (NamedAdam, as AdamW): the specular latent's
-    ``wd_spec``, so that a z_spec that no glint holds up decays towards 0 instead of drifting."""
-    return {"z_spec": cfg.wd_spec} if phase.fits_head and cfg.wd_spec > 0 else {}
+def spec_regularisers(cfg: TrainConfig, phase: Phase) -> tuple[dict[str, float], dict[str, float]]:
+    """({tensor name: decoupled weight decay}, {tensor name: soft threshold per step, in units of its
+    learning rate}) of the phase (NamedAdam's ``weight_decay`` and ``shrink``): the specular latent's
+    ``wd_spec`` and ``spec_shrink``, so that a z_spec that no glint holds up does not drift."""
+    if not phase.fits_head:
+        return {}, {}
+    return ({"z_spec": cfg.wd_spec} if cfg.wd_spec > 0 else {}), ({"z_spec": cfg.spec_shrink} if cfg.spec_shrink > 0
+                                                                   else {})

@@ -42,7 +42,7 @@ from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, plan
 from brfgs.train.run_folder import RunFolder
-from brfgs.train.schedule import learning_rates, shrinks, weight_decays
+from brfgs.train.schedule import learning_rates, spec_regularisers
 from brfgs.train.setup import init_head, run_setup
 from brfgs.train.dense_depth import load_dense_depth
 from brfgs.train.multiview import MultiView, view_neighbour_table
@@ -351,7 +351,7 @@ class Trainer:
         st.opt.lrs = learning_rates(c, phase, st.step, steps, st.meta["extent_m"],
                                     [k for k, _ in st.neural.named_parameters()] if st.neural is not None else (),
                                     [k for k, _ in st.decoder.named_parameters()] if st.decoder is not None else ())
-        st.opt.weight_decay, st.opt.shrink = weight_decays(c, phase), shrinks(c, phase)
+        st.opt.weight_decay, st.opt.shrink = spec_regularisers(c, phase)
         nv = c.views_per_step
         views = [pick_view(st, self.scene.train_indices, self.scene.width, self.scene.height, c, phase)
                  for _ in range(nv)]
