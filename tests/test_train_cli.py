@@ -60,7 +60,8 @@ def test_bad_options_are_user_errors(scene, tmp_path, capsys):
     for opts, field in ((["--stage1-sh-degree", "4"], "stage1_sh_degree"), (["--lambda-normal", "-1"], "lambda_normal"),
                         (["--lambda-flat", "-0.1"], "lambda_flat"), (["--lambda-depth-smooth", "-1"], "lambda_depth_smooth"),
                         (["--lambda-depth-conc", "-1"], "lambda_depth_conc"), (["--lr-spec", "0"], "lr_spec"),
-                        (["--wd-spec", "-0.1"], "wd_spec"), (["--spec-shrink", "-1"], "spec_shrink")):
+                        (["--wd-spec", "-0.1"], "wd_spec"), (["--spec-shrink", "-1"], "spec_shrink"),
+                        (["--normal-edge-rel", "-0.1"], "normal_edge_rel")):
         capsys.readouterr()
         assert main(["train", str(scene), str(tmp_path / "y"), *opts, "--quiet"]) == 2
         assert field in capsys.readouterr().err

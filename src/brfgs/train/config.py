@@ -73,6 +73,9 @@ class TrainConfig:
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
     lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
                                 "not in the paper).")
+    normal_edge_rel: float = _opt(0.0, "Edge-aware depth-normal loss (PGSR): a pixel's weight is exp(-c / (E * mean)), c "
+                                  "its largest contrast to a neighbour in the 3x3-mean observed image, E this value; "
+                                  "a weighted mean, so the prior moves off edges at the same strength (0 = off).")
     normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
     lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "
@@ -205,7 +208,7 @@ class TrainConfig:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         nonneg = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview", "lambda_spectral_tv",
-                  "wd_spec", "spec_shrink")
+                  "wd_spec", "spec_shrink", "normal_edge_rel")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)

@@ -139,14 +139,47 @@ def normals_from_depth(depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tens
     return n, valid
 
 
-def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
-    """Depth-normal consistency (as in 2DGS / PGSR): mean over pixels of alpha · (1 − n_r · n_d).
+def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float) -> torch.Tensor:  # [H, W]
+    """PGSR-style edge weight of every pixel: exp(−max_c max_q |Ĩ_c(q) − Ĩ_c(p)| / (edge_rel · Ī_c)),
+    q the four neighbours of p (none beyond the border), Ĩ the 3 × 3 box mean of the image (edge
+    pixels replicated; it divides a band's noise by 3, which would otherwise read as contrast
+    everywhere), Ī_c the channel's mean |I| over the valid pixels.
+
+    Args:
+        target: [H, W, C] the observed image; valid: [H, W] its valid pixels (invalid ones are 0
+            before the box mean; a pair with an invalid pixel has no contrast).
+        edge_rel: relative contrast at which the weight drops to 1/e.
+    1 on uniform surfaces, → 0 across material and depth edges (a crown against the ground),
+    where the central-difference normal of the rendered depth straddles two surfaces.
+    """
+    t = torch.where(valid[..., None], torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0), 0.0)  # [H, W, C]
+    scale = edge_rel * (t[valid].abs().mean(0) if bool(valid.any()) else t.new_ones(t.shape[-1])).clamp_min(1e-6)
+    x = F.pad(t.permute(2, 0, 1)[None], (1, 1, 1, 1), mode="replicate")  # [1, C, H+2, W+2]
+    t = F.avg_pool2d(x, 3, 1)[0].permute(1, 2, 0)  # [H, W, C]
+    grad = torch.zeros_like(t)  # [H, W, C] largest contrast to a neighbour
+    pair = (valid[1:, :] & valid[:-1, :])[..., None]
+    dy = (t[1:, :] - t[:-1, :]).abs() * pair
+    grad[1:, :] = torch.maximum(grad[1:, :], dy)
+    grad[:-1, :] = torch.maximum(grad[:-1, :], dy)
+    pair = (valid[:, 1:] & valid[:, :-1])[..., None]
+    dx = (t[:, 1:] - t[:, :-1]).abs() * pair
+    grad[:, 1:] = torch.maximum(grad[:, 1:], dx)
+    grad[:, :-1] = torch.maximum(grad[:, :-1], dx)
+    return torch.exp(-(grad / scale).max(-1).values)
+
+
+def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5,
+                      weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d).
 
     Args:
         geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
             :func:`brfgs.model.features.camera_depth_normals`.
         alpha: [H, W] accumulated opacity.
         K: [3, 3] intrinsics of the rendered window.
+        weight: [H, W] optional per-pixel weight w ≥ 0 (e.g. :func:`image_edge_weight`, as PGSR
+            weights its single-view loss by the image gradient); 1 when None. The mean is
+            Σ w·e / Σ w, so the weight moves the prior off edges without weakening it.
     n_r is the normalised rendered normal, n_d the normal of the rendered depth map
     (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. Gradients
     reach both, so the Gaussians' orientations and their depths agree: flat, textureless
@@ -160,8 +193,9 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
     valid = valid & (alpha > min_alpha)
     if not bool(valid.any()):
         return geo.sum() * 0.0
-    err = (1.0 - (nr * nd).sum(-1)) * alpha
-    return (err * valid).sum() / valid.sum()
+    err = (1.0 - (nr * nd).sum(-1)) * alpha  # [H, W]
+    w = valid.to(err.dtype) if weight is None else weight.detach().to(err.dtype) * valid
+    return (err * w).sum() / w.sum().clamp_min(1e-12)
 
 
 def depth_concentration_loss(geo: torch.Tensor, alpha: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:

@@ -21,7 +21,7 @@ from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
 from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
-                                masked_psnr, normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
+                                image_edge_weight, masked_psnr, normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
 from brfgs.train.dense_depth import dense_depth_loss
 from brfgs.train.multiview import multiview_loss
@@ -125,7 +125,8 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     geo = out.image[..., n_feat:]  # [H, W, 4 or 5] depth, normal (, depth²)
     terms = []
     if c.lambda_normal > 0:
-        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K))
+        w = image_edge_weight(batch.target, batch.valid, c.normal_edge_rel) if c.normal_edge_rel > 0 else None
+        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K, weight=w))
     if c.lambda_depth_conc > 0:
         terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
     if c.lambda_depth_smooth > 0:
