@@ -43,13 +43,18 @@ def test_normals_from_depth_of_a_tilted_plane():
     assert not valid2[5, 5] and not valid2[4, 5] and not valid2[5, 6] and valid2[10, 10]
 
 
-def test_depth_normal_loss_zero_when_consistent_and_gradients():
+def _tilted_plane():
+    """A 16 x 14 window of the plane with unit normal ~(0.1, 0.25, -1) 8 m away: sizes, K, normal,
+    depth [H, W] and a uniform alpha 0.9."""
     w, h = 16, 14
     K = _K(w, h, 20.0)
     n0 = torch.tensor([0.1, 0.25, -1.0], dtype=torch.float64)
     n0 = n0 / n0.norm()
-    depth = _plane_depth(n0.numpy(), -8.0, K, w, h)
-    alpha = torch.full((h, w), 0.9, dtype=torch.float64)
+    return w, h, K, n0, _plane_depth(n0.numpy(), -8.0, K, w, h), torch.full((h, w), 0.9, dtype=torch.float64)
+
+
+def test_depth_normal_loss_zero_when_consistent_and_gradients():
+    w, h, K, n0, depth, alpha = _tilted_plane()
     geo = torch.cat([(alpha * depth)[..., None], alpha[..., None] * n0.expand(h, w, 3)], -1)
     assert float(depth_normal_loss(geo, alpha, K)) < 1e-12
     # a wrong rendered normal costs 1 - cos (weighted by alpha)
@@ -114,12 +119,7 @@ def test_image_edge_weight_against_float64_loops_and_limits():
 
 
 def test_weighted_depth_normal_loss_is_a_weighted_mean():
-    w, h = 16, 14
-    K = _K(w, h, 20.0)
-    n0 = torch.tensor([0.1, 0.25, -1.0], dtype=torch.float64)
-    n0 = n0 / n0.norm()
-    depth = _plane_depth(n0.numpy(), -8.0, K, w, h)
-    alpha = torch.full((h, w), 0.9, dtype=torch.float64)
+    w, h, K, n0, depth, alpha = _tilted_plane()
     gen = torch.Generator().manual_seed(1)
     nr = torch.nn.functional.normalize(n0 + 0.3 * torch.randn(h, w, 3, dtype=torch.float64, generator=gen), dim=-1)
     geo = torch.cat([(alpha * depth)[..., None], alpha[..., None] * nr], -1)
