@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -217,6 +218,29 @@ def test_pooled_rows_weigh_scenes_equally_and_tally_the_verdicts():
         CS.compare_scenes([a1, a2], [b2, b1])
 
 
+def test_seeds_of_one_scene_are_averaged_and_the_scene_counts_once():
+    from brfgs.analysis import compare_scenes as CS
+    rng = np.random.default_rng(8)
+    s1 = [_scene_pair(rng, 7, d, r) for d, r in [(0.6, 0.9), (0.2, 1.0)]]  # two training seeds of scene "s1"
+    s2 = _scene_pair(rng, 5, -0.3, 1.1)
+    for k, (a, b) in enumerate(s1):
+        a.scene = b.scene = "s1"
+        a.label, b.label = f"a_seed{k}", f"b_seed{k}"
+    s2[0].scene = s2[1].scene = "s2"
+    runs_a = [s1[0][0], s2[0], s1[1][0]]  # the seeds need not be given side by side
+    runs_b = [s1[0][1], s2[1], s1[1][1]]
+    res = CS.compare_scenes(runs_a, runs_b, n_resamples=300, seed=1)
+    assert len(res["scenes"]) == 2 and [s["n_seeds"] for s in res["scenes"]] == [2, 1]
+    a_mean, b_mean = C.seed_mean([s1[0][0], s1[1][0]]), C.seed_mean([s1[0][1], s1[1][1]])
+    ref = C.compare_block(a_mean, b_mean, np.arange(7), 300, 1)  # scene 0's row: the per-view seed means
+    assert res["scenes"][0]["margin_db"] == pytest.approx(np.mean([a.psnr_db.mean() - b.psnr_db.mean() for a, b in s1]))
+    assert res["scenes"][0]["margin_db_ci95"] == ref["margin_db_ci95"]
+    assert res["scenes"][0]["sam_ratio_ci95"] == ref["sam_ratio_ci95"]
+    m2 = s2[0].psnr_db.mean() - s2[1].psnr_db.mean()
+    assert res["all"]["margin_db"] == pytest.approx((ref["margin_db"] + m2) / 2)  # each scene once, not each pair
+    assert res["all"]["n_scenes"] == 2 and res["all"]["n_views"] == 12
+
+
 def test_cli_pools_scenes(tmp_path, capsys):
     from brfgs.cli import main
     rng = np.random.default_rng(2)
@@ -242,8 +266,16 @@ def test_cli_pools_scenes(tmp_path, capsys):
     swapped = f"{runs['s2'][1]},{runs['s1'][1]},{runs['s3'][1]}"
     assert main(["compare", a, swapped, "--scenes", "--split", "validation"]) == 2
     assert "different scenes" in capsys.readouterr().err
-    twice = f"{runs['s1'][0]},{runs['s1'][0]}"
-    assert main(["compare", twice, f"{runs['s1'][1]},{runs['s1'][1]}", "--scenes", "--split", "validation"]) == 2
-    assert "same scene (s1)" in capsys.readouterr().err
+    twice = f"{runs['s1'][0]},{runs['s1'][0]},{runs['s2'][0]}"
+    assert main(["compare", twice, f"{runs['s1'][1]},{runs['s1'][1]},{runs['s2'][1]}", "--scenes", "--split",
+                 "validation"]) == 2
+    assert "given twice for scene" in capsys.readouterr().err
+    # two pairs of one scene only are its seeds: nothing to pool over scenes
+    seeds_only = f"{runs['s1'][0]},{tmp_path / 's1' / 'a2'}"
+    shutil.copytree(runs["s1"][0], tmp_path / "s1" / "a2")
+    shutil.copytree(runs["s1"][1], tmp_path / "s1" / "b2")
+    assert main(["compare", seeds_only, f"{runs['s1'][1]},{tmp_path / 's1' / 'b2'}", "--scenes", "--split",
+                 "validation"]) == 2
+    assert "two or more scenes, got 1" in capsys.readouterr().err
     assert main(["compare", str(runs["s1"][0]), str(runs["s2"][1]), "--split", "validation"]) == 2
     assert "different scenes" in capsys.readouterr().err

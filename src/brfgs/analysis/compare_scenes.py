@@ -16,6 +16,11 @@ pair per scene (A_i and B_i trained on scene i with the same split), and reports
   rows, and how many of them gain or lose beyond their views' noise, say that;
 - the same pooled statistics per view ring, over the rings every scene has; an interval only where
   every scene has at least 2 views in the ring (one view has no spread to resample).
+
+Several pairs of one scene (the same scene folder) are training seeds of both settings: each side's
+per-view scores are averaged over them (:func:`brfgs.analysis.compare.seed_mean`, as ``brfgs compare
+A1,A2 B1,B2`` does) and the scene counts once, so a scene with more seeds weighs no more, and its
+views' bootstrap draw is shared by its seeds.
 """
 
 from __future__ import annotations
@@ -34,9 +39,10 @@ from brfgs.analysis.compare import (
     require_same_views,
     ring_order,
     sam_ratio,
+    seed_mean,
     table_row,
 )
-from brfgs.errors import require
+from brfgs.errors import UserError, require
 
 MIN_VIEWS_PER_SCENE = 2  # a pooled interval needs every scene to contribute some spread
 
@@ -75,24 +81,40 @@ def _beyond_noise(ci: tuple[float, float] | None, null: float) -> int:
     return 1 if ci[0] > null else -1 if ci[1] < null else 0
 
 
+def by_scene(pairs: list[tuple[Scores, Scores]]) -> list[tuple[Scores, Scores, int]]:
+    """The pairs grouped by scene (its folder, else its name; a pair with neither is a scene of its own),
+    in the order first given: (seed mean of A, seed mean of B, number of seeds) per scene."""
+    groups: dict[str, list[tuple[Scores, Scores]]] = {}
+    for k, (a, b) in enumerate(pairs):
+        groups.setdefault(a.scene_root or a.scene or f"pair {k + 1}", []).append((a, b))
+    out = []
+    for key, grp in groups.items():
+        for side in (0, 1):
+            labels = [p[side].label for p in grp]
+            dup = sorted({x for x in labels if labels.count(x) > 1})
+            if dup:
+                raise UserError(f"run {dup[0]} is given twice for scene {key}; the pairs of one scene are its "
+                                "training seeds, each run once", field="RUNS")
+        out.append((seed_mean([a for a, _ in grp]), seed_mean([b for _, b in grp]), len(grp)))
+    return out
+
+
 def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int = N_RESAMPLES, seed: int = 0) -> dict:
-    """Each scene's comparison (A_i against B_i) and the pooled one, overall and per view ring common to all."""
+    """Each scene's comparison (A_i against B_i; seeds of one scene averaged) and the pooled one, overall
+    and per view ring common to all."""
     require(len(runs_a) == len(runs_b), "--scenes pairs the runs in the order given: give as many runs for A as "
             f"for B (got {len(runs_a)} and {len(runs_b)})", field="RUNS")
-    require(len(runs_a) >= 2, f"--scenes pools two or more scenes, got {len(runs_a)}", field="RUNS")
-    pairs = list(zip(runs_a, runs_b))
     require(n_resamples >= 100, f"expected at least 100, got {n_resamples}", field="--resamples")
-    for a, b in pairs:
+    for a, b in zip(runs_a, runs_b):
         require_same_views(a, b)
-    ids = [a.scene_root or a.scene for a in runs_a]
-    if all(ids):
-        dup = sorted({x for x in ids if ids.count(x) > 1})
-        require(not dup, f"two pairs come from the same scene ({', '.join(dup)}); --scenes pools one pair per "
-                "scene (give seeds of one scene without --scenes)", field="RUNS")
+    grouped = by_scene(list(zip(runs_a, runs_b)))
+    require(len(grouped) >= 2, f"--scenes pools two or more scenes, got {len(grouped)} (the pairs of one scene are its "
+            "seeds: compare them without --scenes)", field="RUNS")
+    pairs = [(a, b) for a, b, _ in grouped]
     scenes = []
     for i, (a, b) in enumerate(pairs):
         blk = compare_block(a, b, np.arange(len(a.views)), n_resamples, seed + i)
-        scenes.append({"a": a.label, "b": b.label, **blk,  # verdicts: +1 = A better beyond the views' noise
+        scenes.append({"a": a.label, "b": b.label, "n_seeds": grouped[i][2], **blk,  # +1: A better beyond noise
                        "psnr_verdict": _beyond_noise(blk.get("margin_db_ci95"), 0.0),
                        "sam_verdict": -_beyond_noise(blk.get("sam_ratio_ci95"), 1.0)})
     res = {"scenes": scenes, "n_resamples": n_resamples, "seed": seed,
@@ -120,7 +142,7 @@ def report_lines(res: dict) -> list[str]:
     lines += ["", f"Pooled: mean over scenes of the margins, geometric mean of the SAM ratios; intervals from a "
               f"bootstrap of each scene's views ({res['n_resamples']} resamples, scene i seed {res['seed']} + i; "
               f"none for fewer than {MIN_VIEWS_FOR_INTERVAL} views in a scene's row, or fewer than "
-              f"{MIN_VIEWS_PER_SCENE} per scene in a pooled row).",
+              f"{MIN_VIEWS_PER_SCENE} per scene in a pooled row); the pairs of one scene are its seeds, averaged per view.",
               "Beyond the views' noise (interval excluding 0 dB / 1×), A is better / worse / undecided in "
               f"PSNR on {'/'.join(map(str, tally['psnr_verdict']))} scenes and in SAM on "
               f"{'/'.join(map(str, tally['sam_verdict']))} scenes."]

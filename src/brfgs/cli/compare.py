@@ -27,10 +27,11 @@ def register(app: typer.Typer) -> None:
         resamples: int = typer.Option(10000, "--resamples", help="Bootstrap resamples of the views."),
         seed: int = typer.Option(0, "--seed", help="Seed of the bootstrap."),
         json_out: Path = typer.Option(None, "--json", help="Also write the comparison to this JSON file."),
-        scenes: bool = typer.Option(False, "--scenes", help="A and B list one run per scene, paired in the order "
+        scenes: bool = typer.Option(False, "--scenes", help="A and B list runs of several scenes, paired in the order "
                                     "given: each scene's row, and the mean over scenes of the margins (geometric "
                                     "mean of the SAM ratios) with a bootstrap of every scene's views, overall and "
-                                    "per ring (a setting chosen over several scenes at once)."),
+                                    "per ring (a setting chosen over several scenes at once). Several pairs of one "
+                                    "scene are its training seeds: averaged per view, the scene counts once."),
     ) -> None:
         """CIR PSNR margin (A − B, dB) and SAM ratio (A / B) over all views and per view ring, with 95 %
         intervals from a paired bootstrap over the views, and the range over seed pairs when several runs
