@@ -260,6 +260,7 @@ def test_cli_pools_scenes(tmp_path, capsys):
     assert res["all"]["margin_db"] == pytest.approx(0.4) and res["all"]["sam_ratio"] == pytest.approx(0.9)
     assert len(res["scenes"]) == 3 and res["split"] == "validation"
     assert "**mean of 3 scenes** | 21 |" in out and "mean, 58° ring" in out and "on 3/0/0 scenes" in out
+    assert f"| s2: {runs['s2'][0]} vs {runs['s2'][1]} | 7 |" in out  # rows named by the scene
     assert main(["compare", a, str(runs["s1"][1]), "--scenes", "--split", "validation"]) == 2
     assert "as many runs" in capsys.readouterr().err
     # a pair from two scenes (same view names), or one scene given twice: an input error naming it

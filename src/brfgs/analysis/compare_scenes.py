@@ -114,7 +114,7 @@ def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int 
     scenes = []
     for i, (a, b) in enumerate(pairs):
         blk = compare_block(a, b, np.arange(len(a.views)), n_resamples, seed + i)
-        scenes.append({"a": a.label, "b": b.label, "n_seeds": grouped[i][2], **blk,  # +1: A better beyond noise
+        scenes.append({"scene": a.scene, "a": a.label, "b": b.label, "n_seeds": grouped[i][2], **blk,  # +1: A better
                        "psnr_verdict": _beyond_noise(blk.get("margin_db_ci95"), 0.0),
                        "sam_verdict": -_beyond_noise(blk.get("sam_ratio_ci95"), 1.0)})
     res = {"scenes": scenes, "n_resamples": n_resamples, "seed": seed,
@@ -131,7 +131,8 @@ def report_lines(res: dict) -> list[str]:
     """Per-scene rows, the pooled row and the pooled per-ring rows as one markdown table, and a tally."""
     lines = [TABLE_HEAD[0].format(first="scene (A vs B)"), TABLE_HEAD[1]]
     for s in res["scenes"]:
-        lines.append(table_row(f"{s['a']} vs {s['b']}", s))
+        name = f"{s['scene']}: " if s.get("scene") else ""
+        lines.append(table_row(f"{name}{s['a']} vs {s['b']}", s))
     lines.append(table_row(f"**mean of {res['all']['n_scenes']} scenes**", res["all"]))
     for ring, blk in res["rings"].items():
         lines.append(table_row(f"mean, {ring}° ring", blk))
