@@ -76,6 +76,9 @@ class TrainConfig:
     normal_edge_rel: float = _opt(0.0, "Edge-aware depth-normal loss (PGSR): a pixel's weight is exp(-c / (E * mean)), c "
                                   "its largest contrast to a neighbour in the 3x3-mean observed image, E this value; "
                                   "a weighted mean, so the prior moves off edges at the same strength (0 = off).")
+    normal_prior_moves_depth: bool = _opt(True, "Let the depth-normal loss move the rendered depth as well as the "
+                                          "Gaussians' normals (2DGS), or only turn the normals toward the depth's "
+                                          "normal.", "--normal-prior-moves-depth/--normal-prior-normals-only")
     normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
     lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "

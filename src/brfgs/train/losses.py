@@ -169,7 +169,7 @@ def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float
 
 
 def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5,
-                      weight: torch.Tensor | None = None) -> torch.Tensor:
+                      weight: torch.Tensor | None = None, depth_grad: bool = True) -> torch.Tensor:
     """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d).
 
     Args:
@@ -180,6 +180,8 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
         weight: [H, W] optional per-pixel weight w ≥ 0 (e.g. :func:`image_edge_weight`, as PGSR
             weights its single-view loss by the image gradient); 1 when None. The mean is
             Σ w·e / Σ w, so the weight moves the prior off edges without weakening it.
+        depth_grad: False detaches n_d: the prior then turns the Gaussians toward the rendered
+            depth's normal but never moves the depth (nor alpha) itself.
     n_r is the normalised rendered normal, n_d the normal of the rendered depth map
     (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. Gradients
     reach both, so the Gaussians' orientations and their depths agree: flat, textureless
@@ -189,7 +191,7 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
     depth = geo[..., 0] / a
     nr = geo[..., 1:4]
     nr = nr / nr.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    nd, valid = normals_from_depth(depth, K)
+    nd, valid = normals_from_depth(depth if depth_grad else depth.detach(), K)
     valid = valid & (alpha > min_alpha)
     if not bool(valid.any()):
         return geo.sum() * 0.0

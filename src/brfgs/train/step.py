@@ -126,7 +126,8 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     terms = []
     if c.lambda_normal > 0:
         w = image_edge_weight(batch.target, batch.valid, c.normal_edge_rel) if c.normal_edge_rel > 0 else None
-        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K, weight=w))
+        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K, weight=w,
+                                                         depth_grad=c.normal_prior_moves_depth))
     if c.lambda_depth_conc > 0:
         terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
     if c.lambda_depth_smooth > 0:
