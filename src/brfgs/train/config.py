@@ -76,9 +76,10 @@ class TrainConfig:
     normal_edge_rel: float = _opt(0.0, "Edge-aware depth-normal loss (PGSR): a pixel's weight is exp(-c / (E * mean)), c "
                                   "its largest contrast to a neighbour in the 3x3-mean observed image, E this value; "
                                   "a weighted mean, so the prior moves off edges at the same strength (0 = off).")
-    normal_prior_moves_depth: bool = _opt(True, "Let the depth-normal loss move the rendered depth as well as the "
-                                          "Gaussians' normals (2DGS), or only turn the normals toward the depth's "
-                                          "normal.", "--normal-prior-moves-depth/--normal-prior-normals-only")
+    normal_prior_moves_depth: bool = _opt(False, "Let the depth-normal loss move the rendered depth as well as the "
+                                          "Gaussians' normals (2DGS; before Session 26), or only turn the normals "
+                                          "toward the depth's normal (default: it no longer lifts the ground toward "
+                                          "crowns).", "--normal-prior-moves-depth/--normal-prior-normals-only")
     normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
     lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "
@@ -320,8 +321,8 @@ class Addition:
 ADDITIONS: dict[str, Addition] = {
     "stage1_cir_bands": Addition(dict(stage1_cir_bands=False), 1, "the EFC bands may all lie in one spectral region; "
                                  "the CIR bands carry the visible texture that stage-1 geometry should explain"),
-    "depth_normal": Addition(dict(lambda_normal=0.0), 1, "ties each Gaussian's normal to the rendered depth's "
-                             "gradient (2DGS/GOF-style), for usable normal maps and specular normals"),
+    "depth_normal": Addition(dict(lambda_normal=0.0), 1, "turns each Gaussian's normal toward the rendered depth's "
+                             "gradient (2DGS/GOF-style; normals only), for usable normal maps and specular normals"),
     "flatness": Addition(dict(lambda_flat=0.0), 1, "flattened Gaussians have a defined normal (the smallest axis) for "
                          "the Cook-Torrance kernel"),
     "depth_smoothness": Addition(dict(lambda_depth_smooth=0.0), 1, "edge-aware smoothness of the rendered inverse "
