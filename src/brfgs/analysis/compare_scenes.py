@@ -112,9 +112,9 @@ def compare_scenes(runs_a: list[Scores], runs_b: list[Scores], n_resamples: int 
             "seeds: compare them without --scenes)", field="RUNS")
     pairs = [(a, b) for a, b, _ in grouped]
     scenes = []
-    for i, (a, b) in enumerate(pairs):
+    for i, (a, b, n_seeds) in enumerate(grouped):
         blk = compare_block(a, b, np.arange(len(a.views)), n_resamples, seed + i)
-        scenes.append({"scene": a.scene, "a": a.label, "b": b.label, "n_seeds": grouped[i][2], **blk,  # +1: A better
+        scenes.append({"scene": a.scene, "a": a.label, "b": b.label, "n_seeds": n_seeds, **blk,  # +1: A better
                        "psnr_verdict": _beyond_noise(blk.get("margin_db_ci95"), 0.0),
                        "sam_verdict": -_beyond_noise(blk.get("sam_ratio_ci95"), 1.0)})
     res = {"scenes": scenes, "n_resamples": n_resamples, "seed": seed,

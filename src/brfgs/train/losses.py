@@ -157,14 +157,13 @@ def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float
     x = F.pad(t.permute(2, 0, 1)[None], (1, 1, 1, 1), mode="replicate")  # [1, C, H+2, W+2]
     t = F.avg_pool2d(x, 3, 1)[0].permute(1, 2, 0)  # [H, W, C]
     grad = torch.zeros_like(t)  # [H, W, C] largest contrast to a neighbour
-    pair = (valid[1:, :] & valid[:-1, :])[..., None]
-    dy = (t[1:, :] - t[:-1, :]).abs() * pair
-    grad[1:, :] = torch.maximum(grad[1:, :], dy)
-    grad[:-1, :] = torch.maximum(grad[:-1, :], dy)
-    pair = (valid[:, 1:] & valid[:, :-1])[..., None]
-    dx = (t[:, 1:] - t[:, :-1]).abs() * pair
-    grad[:, 1:] = torch.maximum(grad[:, 1:], dx)
-    grad[:, :-1] = torch.maximum(grad[:, :-1], dx)
+    for dim in (0, 1):  # each neighbour pair along y, then x, counts for both of its pixels
+        n = t.shape[dim] - 1
+        hi, lo = t.narrow(dim, 1, n), t.narrow(dim, 0, n)
+        d = (hi - lo).abs() * (valid.narrow(dim, 1, n) & valid.narrow(dim, 0, n))[..., None]
+        for k in (0, 1):
+            view = grad.narrow(dim, k, n)
+            view.copy_(torch.maximum(view, d))
     return torch.exp(-(grad / scale).max(-1).values)
 
 
@@ -183,9 +182,10 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
         depth_grad: False detaches n_d: the prior then turns the Gaussians toward the rendered
             depth's normal but never moves the depth (nor alpha) itself.
     n_r is the normalised rendered normal, n_d the normal of the rendered depth map
-    (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. Gradients
-    reach both, so the Gaussians' orientations and their depths agree: flat, textureless
-    surfaces (water, roofs) get normals from their neighbours' depths.
+    (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. With
+    ``depth_grad`` gradients reach both, so the Gaussians' orientations and their depths agree
+    (2DGS); training detaches the depth by default (``TrainConfig.normal_prior_moves_depth``).
+    Either way flat, textureless surfaces (water, roofs) get normals from their neighbours' depths.
     """
     a = alpha.clamp_min(1e-6)
     depth = geo[..., 0] / a
