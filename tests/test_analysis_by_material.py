@@ -73,6 +73,59 @@ def test_finer_maps_count_only_pure_blocks():
                        np.ones((2, 2)), np.ones((2, 2)), np.zeros((2, 2)))
 
 
+def _rot(axis: str, deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    c, s = np.cos(a), np.sin(a)
+    return {"x": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]), "y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])}[axis]
+
+
+def test_normal_error_of_a_tilted_plane_against_its_true_depth():
+    """A plane 20 m in front of a camera, its normal tilted 25° (facing the camera): the normal map
+    of the plane itself scores 0°, one turned by 15° scores 15°, in any camera rotation; pixels
+    next to another material, or with no rendered normal, are left out (NaN)."""
+    w, h = 12, 10
+    K = np.array([[30.0, 0, w / 2], [0, 30.0, h / 2], [0, 0, 1]])
+    n_cam = _rot("x", 25.0) @ np.array([0.0, 0.0, -1.0])            # camera axes, facing the camera
+    v, u = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+    depth = -20.0 / (rays @ n_cam)                                   # the plane n_cam . P = -20
+    viewmat = np.eye(4)
+    viewmat[:3, :3] = _rot("y", 40.0) @ _rot("x", -70.0)             # world -> camera
+    n_world = viewmat[:3, :3].T @ n_cam
+    ids = np.ones((h, w), int)
+    ids[:, 9:] = 2
+    err = BM.normal_error_deg(np.broadcast_to(n_world, (h, w, 3)), viewmat, K, depth, ids)
+    inner = (slice(1, -1), slice(1, 8))
+    np.testing.assert_allclose(err[inner], 0.0, atol=1e-5)
+    assert np.isnan(err[:, 8:10]).all() and np.isnan(err[0]).all()  # material edge and border
+    turned = viewmat[:3, :3].T @ (_rot("x", 15.0) @ n_cam)             # about an axis in the plane
+    normals = np.broadcast_to(turned, (h, w, 3)).copy()
+    normals[5, 4] = 0.0                                              # nothing rendered there
+    err = BM.normal_error_deg(normals, viewmat, K, depth, ids)
+    assert np.isnan(err[5, 4])
+    err[5, 4] = 15.0
+    np.testing.assert_allclose(err[inner], 15.0, atol=1e-5)
+
+
+def test_view_pixels_pools_the_normal_error_where_the_model_is_opaque():
+    rng = np.random.default_rng(3)
+    mat, rc, tc, ok, a, d, s, td, rcu, tcu = _toy_view(rng, h=8, w=10)
+    mat[:] = 1
+    mat[:, 6:] = 2
+    K = np.array([[20.0, 0, 5], [0, 20.0, 4], [0, 0, 1]])
+    normals = rng.normal(size=(8, 10, 3))
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    pix = BM.view_pixels(mat, rc, tc, ok, a, d, s, td, rcu, tcu, (normals, np.eye(4), K))
+    ref = BM.normal_error_deg(normals, np.eye(4), K, td, mat)
+    for k in (1, 2):
+        sel = ok & (mat == k)
+        want = np.where(a >= BM.MIN_ALPHA, ref, np.nan)[sel]
+        np.testing.assert_array_equal(pix[k]["dn"], want)
+        got = BM.summarise([pix], {1: "grass", 2: "soil"})["grass" if k == 1 else "soil"]["normal_error_deg"]
+        assert got == pytest.approx(np.nanmedian(want))
+    assert BM.summarise([BM.view_pixels(mat, rc, tc, ok, a, d, s, td)], {})["1"]["normal_error_deg"] is None
+
+
 def _two_layers(h_top: float, logit_top: float, logit_low: float):
     """A carpet at z = 0 and a copy lifted to ``h_top`` (the top layer's opacity logit given)."""
     low = carpet_model()
@@ -92,7 +145,7 @@ def test_depth_spread_of_two_layers_matches_the_closed_form():
     cam = both.cameras[0]                                   # nadir, 60 m above the carpet
     a_low = render(low, cam, decode=False).alpha.astype(np.float64)
     a_top = render(top, cam, decode=False).alpha.astype(np.float64)
-    alpha, depth, spread = BM.ray_depth_moments(both, cam)
+    alpha, depth, spread, normal = BM.ray_depth_moments(both, cam)
     centre = (slice(10, 22), slice(10, 22))        # well inside the 40 m carpet
     t_top, t_low = 60.0 - 1.5, 60.0
     w_top, w_low = a_top, (1 - a_top) * a_low                # the top layer composites first
@@ -101,6 +154,8 @@ def test_depth_spread_of_two_layers_matches_the_closed_form():
     np.testing.assert_allclose(depth[centre], (p * t_top + (1 - p) * t_low)[centre], atol=2e-3)
     np.testing.assert_allclose(spread[centre], (np.sqrt(p * (1 - p)) * 1.5)[centre], atol=2e-2)
     # one opaque layer: no spread; a finer layer stack (lower top layer) spreads less
+    # the carpets are level: the normal map points up (world), toward the nadir camera
+    np.testing.assert_allclose(normal[centre], np.broadcast_to([0.0, 0.0, 1.0], normal[centre].shape), atol=1e-4)
     s_one = BM.ray_depth_moments(low, cam)[2]
     assert np.nanmax(s_one[centre]) < 1e-3
     assert np.nanmedian(BM.ray_depth_moments(_two_layers(0.5, -2.0, -1.0)[2], cam)[2][centre]) < np.nanmedian(
@@ -129,7 +184,7 @@ def test_evaluate_writes_materials_for_scenes_with_material_maps(tmp_path, capsy
     assert set(mats["rings"]) == set(m["against"]["truth"]["rings"])
     for s in mats["mean"].values():
         assert s["n_pixels"] > 0 and s["psnr"] > 0 and 0 <= s["alpha"] <= 1 and s["sam"] is not None
-        assert s["depth_error_m"] is None                   # no truth/depth in this scene
+        assert s["depth_error_m"] is None and s["normal_error_deg"] is None  # no truth/depth in this scene
     assert "materials" not in m["against"]["observed"]
     # maps on another pixel grid are left out; a corrupt map is an input error naming the file
     name = m["split"]["test"][0]

@@ -11,7 +11,8 @@ from brfgs.model.gaussians import init_from_points
 from brfgs.model.camera import camera_from_c2w
 from brfgs.model.features import camera_depth_normals
 from brfgs.model.rendering import rasterize_features
-from brfgs.train.losses import depth_normal_loss, flatten_loss, image_edge_weight, normals_from_depth
+from brfgs.render.geometry import normals_from_depth
+from brfgs.train.losses import depth_normal_loss, flatten_loss, image_edge_weight
 
 
 def _K(w=24, h=20, f=30.0):
@@ -72,6 +73,36 @@ def test_depth_normal_loss_zero_when_consistent_and_gradients():
     Kc[1, 2] -= 4
     a = alpha[4:10, 5:11]
     assert torch.autograd.gradcheck(lambda x: depth_normal_loss(x, a, Kc), (g,), eps=1e-6, atol=1e-6)
+
+
+def test_per_gaussian_depth_normal_loss_counts_each_disc_by_its_weight():
+    """Two discs on every ray of a plane: 80 % of the weight facing the plane's normal, 10 % a fin
+    turned 80° away. 2DGS's per-Gaussian form is sum_k w_k (1 - n_k . n_d) (float64 reference);
+    the blended form renormalises the mean normal, in which the fin is nearly hidden."""
+    w, h, K, n0, depth, _ = _tilted_plane()
+    side = torch.linalg.cross(n0, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+    side = side / side.norm()
+    fin = math.cos(math.radians(80)) * n0 + math.sin(math.radians(80)) * side
+    wk = (0.8, 0.1)
+    alpha = torch.full((h, w), sum(wk), dtype=torch.float64)
+    blended = wk[0] * n0 + wk[1] * fin  # [3] premultiplied
+    geo = torch.cat([(alpha * depth)[..., None], blended.expand(h, w, 3)], -1)
+    expected = sum(wi * (1 - float(ni @ n0)) for wi, ni in zip(wk, (n0, fin)))
+    per = float(depth_normal_loss(geo, alpha, K, per_gaussian=True))
+    assert math.isclose(per, expected, rel_tol=1e-9)
+    old = float(depth_normal_loss(geo, alpha, K))
+    assert math.isclose(old, 0.9 * (1 - float(blended @ n0) / float(blended.norm())), rel_tol=1e-9)
+    assert per > 5 * old  # the fin's misalignment is not averaged away
+    # consistent discs cost nothing in either form
+    flat = torch.cat([(alpha * depth)[..., None], alpha[..., None] * n0.expand(h, w, 3)], -1)
+    assert float(depth_normal_loss(flat, alpha, K, per_gaussian=True)) < 1e-12
+    g = (geo + 0.01 * torch.randn(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1)))
+    g = g[3:9, 4:10].clone().requires_grad_(True)
+    Kc = K.clone()
+    Kc[0, 2] -= 4
+    Kc[1, 2] -= 3
+    assert torch.autograd.gradcheck(lambda x: depth_normal_loss(x, alpha[3:9, 4:10], Kc, per_gaussian=True), (g,),
+                                    eps=1e-6, atol=1e-6)
 
 
 def _edge_weight_reference(img: np.ndarray, valid: np.ndarray, edge_rel: float) -> np.ndarray:

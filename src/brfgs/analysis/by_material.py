@@ -14,7 +14,11 @@ the blended depths along the pixel's ray and the signed error of the expected de
 - ``depth_spread_m``: median standard deviation of the blended depths along the ray,
   sqrt(E_w[t²] − E_w[t]²) (0 for one opaque surface; a translucent stack of layers blurs the
   texture of an oblique view by about spread · tan θ_v);
-- ``depth_error_m``: median of (rendered expected depth − true depth) along the optical axis.
+- ``depth_error_m``: median of (rendered expected depth − true depth) along the optical axis;
+- ``normal_error_deg``: median angle between the model's normal map (as ``brfgs render`` gives
+  it: the Gaussians' smallest axes, blended) and the normal of the true depth map, on pixels
+  whose four neighbours are of the same material (a central difference across an edge is no
+  surface normal).
 
 When the maps are finer than the rendered images (``--downscale``), a pixel counts only when its
 whole block has one material (pure pixels); depths are block means.
@@ -32,12 +36,15 @@ from brfgs.analysis.roi import read_materials_json
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, render
 from brfgs.model.camera import Camera
+from brfgs.render.geometry import normals_from_depth
 
 DEFINITIONS = ("pixels of each simulator material (truth/materials, pure pixels), pooled over the views: psnr (CIR, "
                "pooled squared error), sam (mean, rad), error_share (of all pooled CIR squared error), alpha (median "
                "rendered opacity), depth_spread_m (median sd of the blended depths along the ray, where alpha >= 0.5), "
-               "depth_error_m (median rendered expected depth - true depth, where alpha >= 0.5)")
-KEYS = ("se", "sam", "alpha", "spread", "dz")   # per-pixel values gathered per material
+               "depth_error_m (median rendered expected depth - true depth, where alpha >= 0.5), "
+               "normal_error_deg (median angle between the rendered normal map and the true depth's normal, "
+               "where alpha >= 0.5 and the 4 neighbours are of the same material)")
+KEYS = ("se", "sam", "alpha", "spread", "dz", "dn")   # per-pixel values gathered per material
 MIN_ALPHA = 0.5                                 # depth statistics only where the model is mostly opaque
 
 
@@ -86,8 +93,10 @@ def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.nd
     return mat, None if dep is None or dep.shape != mat.shape else dep
 
 
-def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(alpha [H, W], expected depth [H, W] m, depth spread [H, W] m) of ``cam``'s rays: the
+def ray_depth_moments(model: TrainedModel, cam: Camera,
+                      backend: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(alpha [H, W], expected depth [H, W] m, depth spread [H, W] m, normal map [H, W, 3]: unit,
+    world, 0 where nothing) of ``cam``'s rays: the
     camera depths t of the Gaussians rasterized with their squares, E_w[t] and
     sqrt(E_w[t²] − E_w[t]²) over the blending weights w (NaN where α = 0). The depths are taken
     relative to the median depth of the Gaussians in front of the camera, so that the float32
@@ -102,13 +111,30 @@ def ray_depth_moments(model: TrainedModel, cam: Camera, backend: str = "auto") -
         d = t_all[idx] - ref
         return torch.stack([d, d * d], -1)
 
-    rv = render(model, cam, features=features, decode=False, backend=backend)
+    rv = render(model, cam, features=features, decode=False, normals=True, backend=backend)
     m = rv.image.numpy().astype(np.float64)  # [H, W, 2] premultiplied
     a = rv.alpha.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         d1 = np.where(a > 0, m[..., 0] / a, np.nan)
         d2 = np.where(a > 0, m[..., 1] / a, np.nan)
-    return rv.alpha, d1 + ref, np.sqrt(np.clip(d2 - d1 * d1, 0.0, None))
+    return rv.alpha, d1 + ref, np.sqrt(np.clip(d2 - d1 * d1, 0.0, None)), rv.normal
+
+
+def normal_error_deg(normal_world: np.ndarray, viewmat: np.ndarray, K: np.ndarray, true_depth_m: np.ndarray,
+                     ids: np.ndarray) -> np.ndarray:  # [H, W] deg
+    """Angle (deg) between a normal map [H, W, 3] (unit, world axes, facing the camera, 0 where
+    nothing) and the normal of the true depth [H, W] (m along the optical axis, same grid, camera
+    ``viewmat`` [4, 4] world -> camera, intrinsics ``K`` [3, 3]); NaN where either is undefined or a
+    4-neighbour's material id (``ids`` [H, W]) differs from the pixel's."""
+    nt, ok = normals_from_depth(torch.as_tensor(true_depth_m, dtype=torch.float64),
+                                torch.as_tensor(K, dtype=torch.float64))
+    n_cam = np.asarray(normal_world, np.float64) @ np.asarray(viewmat, np.float64)[:3, :3].T  # [H, W, 3]
+    same = np.zeros(ids.shape, bool)
+    c = ids[1:-1, 1:-1]
+    same[1:-1, 1:-1] = (ids[:-2, 1:-1] == c) & (ids[2:, 1:-1] == c) & (ids[1:-1, :-2] == c) & (ids[1:-1, 2:] == c)
+    cos = np.clip((n_cam * nt.numpy()).sum(-1), -1.0, 1.0)
+    keep = ok.numpy() & same & (np.linalg.norm(n_cam, axis=-1) > 0.5)
+    return np.where(keep, np.degrees(np.arccos(cos)), np.nan)
 
 
 def _block(arr: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -135,9 +161,11 @@ def view_pixels(
     true_depth_m: np.ndarray | None = None,  # [H', W'] m along the optical axis
     render_cube: np.ndarray | None = None,  # [H, W, B]
     truth_cube: np.ndarray | None = None,  # [H, W, B]
+    normal_cam: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,  # normal map [H, W, 3], viewmat, K
 ) -> dict[int, dict[str, np.ndarray]]:
     """{material id: {key: per-pixel values [n]}} of one view (keys :data:`KEYS`; "sam" absent
-    without cubes; "spread" and "dz" NaN where α < :data:`MIN_ALPHA`, "dz" NaN without true depth)."""
+    without cubes; "spread", "dz" and "dn" NaN where α < :data:`MIN_ALPHA`, "dz" and "dn" NaN
+    without true depth, "dn" also without ``normal_cam``: :func:`normal_error_deg`)."""
     shape = valid.shape
     mat_mean, pure = _block(material, shape)
     ids = np.rint(mat_mean).astype(np.int64)
@@ -146,14 +174,17 @@ def view_pixels(
     sam = None if render_cube is None or truth_cube is None else spectral_angle(render_cube, truth_cube)
     solid = alpha >= MIN_ALPHA
     spread = np.where(solid, spread_m, np.nan)
-    dz = np.full(shape, np.nan)
+    dz, dn = np.full(shape, np.nan), np.full(shape, np.nan)
     if true_depth_m is not None:
         td, _ = _block(np.asarray(true_depth_m, np.float64), shape)
         dz = np.where(solid & (td > 0), depth_m - td, np.nan)
+        if normal_cam is not None:
+            dn = np.where(solid & pure, normal_error_deg(normal_cam[0], normal_cam[1], normal_cam[2], td, ids), np.nan)
     out = {}
     for k in np.unique(ids[ok]):
         sel = ok & (ids == k)
-        vals = {"se": se[sel], "alpha": np.asarray(alpha, np.float64)[sel], "spread": spread[sel], "dz": dz[sel]}
+        vals = {"se": se[sel], "alpha": np.asarray(alpha, np.float64)[sel], "spread": spread[sel], "dz": dz[sel],
+                "dn": dn[sel]}
         if sam is not None:
             vals["sam"] = sam[sel]
         out[int(k)] = vals
@@ -173,7 +204,8 @@ def _stats(vals: dict[str, np.ndarray], total_se: float) -> dict:
             "psnr": float("inf") if mse == 0 else float(-10 * np.log10(mse)),
             "sam": None if "sam" not in vals else float(np.mean(vals["sam"])),
             "error_share": float(vals["se"].sum() / total_se) if total_se > 0 else None,
-            "alpha": med("alpha"), "depth_spread_m": med("spread"), "depth_error_m": med("dz")}
+            "alpha": med("alpha"), "depth_spread_m": med("spread"), "depth_error_m": med("dz"),
+            "normal_error_deg": med("dn")}
 
 
 def summarise(views: list[dict[int, dict[str, np.ndarray]]], names: dict[int, str]) -> dict:

@@ -71,9 +71,11 @@ def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.n
     maps = by_material.truth_maps(scene, i, r.cir.shape[:2])
     if maps is None:
         return None
-    alpha, depth, spread = by_material.ray_depth_moments(lm, lm.cameras[i], backend)
+    cam = lm.cameras[i]
+    alpha, depth, spread, normal = by_material.ray_depth_moments(lm, cam, backend)
     return by_material.view_pixels(maps[0], r.cir, ref_cir, ok, alpha, depth, spread, maps[1],
-                                   r.cube if lm.spectral else None, ref if lm.spectral else None)
+                                   r.cube if lm.spectral else None, ref if lm.spectral else None,
+                                   (normal, cam.viewmat.numpy(), cam.K.numpy()))
 
 
 def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> tuple[dict, dict | None]:

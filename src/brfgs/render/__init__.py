@@ -26,8 +26,9 @@ screen-space positional gradient in pixels (3DGS densification statistic); with 
 ``meta["means2d"].absgrad`` is AbsGS's: each pixel's gradient summed in absolute value. ``image``
 is premultiplied by alpha; a background is the caller's (``image + (1 − alpha)·bg``).
 
-Geometry shared with the reflectance head and the trainer (one copy of each formula) is in
-``brfgs.render.geometry``: ``quat_to_rotmat`` and ``project_pinhole``.
+Geometry shared with the reflectance head, the trainer and the evaluation (one copy of each
+formula) is in ``brfgs.render.geometry``: ``quat_to_rotmat``, ``project_pinhole`` and
+``normals_from_depth``.
 
 Threads
 -------

@@ -1,5 +1,5 @@
-"""Geometry of Gaussians and pinhole cameras shared by the rasterizer, the reflectance head and
-the trainer: one copy of each formula.
+"""Geometry of Gaussians and pinhole cameras shared by the rasterizer, the reflectance head, the
+trainer and the evaluation: one copy of each formula.
 
 Conventions (as gsplat): quaternions (w, x, y, z); world-to-camera ``viewmat`` with OpenCV axes
 (+x right, +y down, +z forward); pinhole ``K`` in pixels with pixel i spanning [i, i + 1).
@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["quat_to_rotmat", "project_pinhole"]
+__all__ = ["quat_to_rotmat", "project_pinhole", "normals_from_depth"]
 
 
 def quat_to_rotmat(
@@ -49,3 +49,31 @@ def project_pinhole(
     u = K[0, 0] * pc[:, 0] / z.clamp_min(1e-6) + K[0, 2]
     v = K[1, 1] * pc[:, 1] / z.clamp_min(1e-6) + K[1, 2]
     return torch.stack([u, v], -1), z
+
+
+def normals_from_depth(depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Surface normals [H, W, 3] (camera axes, facing the camera) of a depth map [H, W] (m along
+    the optical axis) from central differences of the back-projected points, and a validity
+    mask [H, W] (border pixels and non-finite or non-positive depths are invalid).
+
+    Pixel (u, v) back-projects to depth · K⁻¹ [u + 0.5, v + 0.5, 1] (pixel centres).
+    """
+    h, w = depth.shape
+    v, u = torch.meshgrid(torch.arange(h, dtype=depth.dtype) + 0.5, torch.arange(w, dtype=depth.dtype) + 0.5,
+                          indexing="ij")
+    x = (u - K[0, 2]) / K[0, 0]
+    y = (v - K[1, 2]) / K[1, 1]
+    ok = torch.isfinite(depth) & (depth > 0)
+    d = torch.where(ok, depth, torch.ones_like(depth))
+    pts = torch.stack([x * d, y * d, d], -1)  # [H, W, 3]
+    dx = torch.zeros_like(pts)
+    dy = torch.zeros_like(pts)
+    dx[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
+    dy[1:-1, :] = pts[2:, :] - pts[:-2, :]
+    n = torch.cross(dx, dy, dim=-1)  # [H, W, 3]; for a fronto-parallel plane (0, 0, +): away from the camera
+    n = -n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    inner = torch.zeros_like(ok)
+    inner[1:-1, 1:-1] = True
+    valid = ok & inner
+    valid[1:-1, 1:-1] &= ok[2:, 1:-1] & ok[:-2, 1:-1] & ok[1:-1, 2:] & ok[1:-1, :-2]
+    return n, valid

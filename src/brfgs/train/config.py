@@ -23,6 +23,7 @@ from brfgs.render.supersample import MAX_SUPERSAMPLE
 VARIANTS = ("brf", "sh", "neural", "cir")
 DECODE_ORDERS = ("pixel", "gaussian")
 INIT_FILLS = ("surface", "mvs")
+MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixels
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -80,6 +81,11 @@ class TrainConfig:
                                           "Gaussians' normals (2DGS; before Session 26), or only turn the normals "
                                           "toward the depth's normal (default: it no longer lifts the ground toward "
                                           "crowns).", "--normal-prior-moves-depth/--normal-prior-normals-only")
+    normal_prior_per_gaussian: bool = _opt(False, "Depth-normal loss in 2DGS's per-Gaussian form, sum_k w_k (1 - n_k . "
+                                           "n_d): each Gaussian on a ray is turned in proportion to its blending "
+                                           "weight, so a minority of tilted discs in a stack is not hidden in the "
+                                           "ray's blended normal (which the default form renormalises).",
+                                           "--normal-prior-per-gaussian/--normal-prior-blended")
     normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
     lambda_depth_conc: float = _opt(0.0, "Weight of the ray-wise depth concentration loss (2DGS-style surface prior; "
@@ -152,6 +158,12 @@ class TrainConfig:
                                     "its first step; before it each pixel is one sample). Stage 2 and rendering "
                                     "always supersample. --preset fine: 0.5 (the forest +0.30 dB against 0, the "
                                     "testsites -0.15 to -0.01; docs/method.md).")
+    coarse_levels: int = _opt(0, "Coarse-to-fine geometry (nerfstudio's splatfacto resolution schedule): early in a "
+                              "geometry phase the photometric loss compares the render and the observation area-"
+                              "averaged over 2^k x 2^k pixels, k falling from this value to 1 over --coarse-until of "
+                              "the phase, then full resolution. A blurred image keeps a height error of a pixel's "
+                              "parallax inside the loss's basin (brfgs.train.losses.area_pool). 0 = off (the paper).")
+    coarse_until: float = _opt(0.2, "Fraction of a geometry phase over which --coarse-levels applies.")
     filter_3d: bool = _opt(False, "Mip-Splatting's 3D smoothing filter while geometry trains: each Gaussian convolved "
                            "with an isotropic Gaussian of sqrt(0.2) x its finest training-view pixel footprint "
                            "(opacity compensated), recomputed every 100 steps and baked into the model at the end of "
@@ -232,6 +244,11 @@ class TrainConfig:
             raise UserError(f"supersample must be in 1..{MAX_SUPERSAMPLE}, got {self.supersample}", field="supersample")
         if not 0 <= self.supersample_start <= 1:
             raise UserError(f"supersample_start must be in [0, 1], got {self.supersample_start}", field="supersample_start")
+        if not 0 <= self.coarse_levels <= MAX_COARSE_LEVELS:
+            raise UserError(f"coarse_levels must be in 0..{MAX_COARSE_LEVELS}, got {self.coarse_levels}",
+                            field="coarse_levels")
+        if not 0 < self.coarse_until <= 1:
+            raise UserError(f"coarse_until must be in (0, 1], got {self.coarse_until}", field="coarse_until")
         if self.downscale < 1:
             raise UserError("downscale must be >= 1", field="downscale")
         if self.init_fill not in INIT_FILLS:

@@ -9,12 +9,35 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from brfgs.render.geometry import normals_from_depth
 from brfgs.spectral import spectral_angle_torch
 
 
 def fill_invalid(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """target [H,W,C] with invalid pixels (valid [H,W] False) set to pred.detach()."""
     return torch.where(valid[..., None], target, pred.detach())
+
+
+def area_pool(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor,
+              factor: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Render, observation and mask area-averaged over ``factor`` x ``factor`` pixel blocks.
+
+    pred, target [H, W, C], valid [H, W] -> [H // f, W // f, C] twice and [H // f, W // f]; the
+    last H % f rows and W % f columns are dropped. A block is valid when all its pixels are; its
+    target is the mean of its pixels (invalid ones, which may be NaN, never enter a valid block).
+    """
+    f = int(factor)
+    if f <= 1:
+        return pred, target, valid
+    h, w = pred.shape[0] // f * f, pred.shape[1] // f * f
+
+    def pool(x: torch.Tensor) -> torch.Tensor:  # [h, w, C] -> [h/f, w/f, C]
+        return torch.nn.functional.avg_pool2d(x[:h, :w].permute(2, 0, 1)[None], f)[0].permute(1, 2, 0)
+
+    v = valid[:h, :w]
+    t = torch.where(v[..., None], target[:h, :w], torch.zeros((), dtype=target.dtype))
+    v_pooled = pool(v[..., None].to(pred.dtype))[..., 0] > 1 - 1e-6  # [h/f, w/f]
+    return pool(pred), pool(t), v_pooled
 
 
 def masked_l1(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
@@ -111,34 +134,6 @@ def masked_psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -
     return float(-10 * torch.log10(mse))
 
 
-def normals_from_depth(depth: torch.Tensor, K: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Surface normals [H, W, 3] (camera axes, facing the camera) of a depth map [H, W] (m along
-    the optical axis) from central differences of the back-projected points, and a validity
-    mask [H, W] (border pixels and non-finite or non-positive depths are invalid).
-
-    Pixel (u, v) back-projects to depth · K⁻¹ [u + 0.5, v + 0.5, 1] (pixel centres).
-    """
-    h, w = depth.shape
-    v, u = torch.meshgrid(torch.arange(h, dtype=depth.dtype) + 0.5, torch.arange(w, dtype=depth.dtype) + 0.5,
-                          indexing="ij")
-    x = (u - K[0, 2]) / K[0, 0]
-    y = (v - K[1, 2]) / K[1, 1]
-    ok = torch.isfinite(depth) & (depth > 0)
-    d = torch.where(ok, depth, torch.ones_like(depth))
-    pts = torch.stack([x * d, y * d, d], -1)  # [H, W, 3]
-    dx = torch.zeros_like(pts)
-    dy = torch.zeros_like(pts)
-    dx[:, 1:-1] = pts[:, 2:] - pts[:, :-2]
-    dy[1:-1, :] = pts[2:, :] - pts[:-2, :]
-    n = torch.cross(dx, dy, dim=-1)  # [H, W, 3]; for a fronto-parallel plane (0, 0, +): away from the camera
-    n = -n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    inner = torch.zeros_like(ok)
-    inner[1:-1, 1:-1] = True
-    valid = ok & inner
-    valid[1:-1, 1:-1] &= ok[2:, 1:-1] & ok[:-2, 1:-1] & ok[1:-1, 2:] & ok[1:-1, :-2]
-    return n, valid
-
-
 def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float) -> torch.Tensor:  # [H, W]
     """PGSR-style edge weight of every pixel: exp(−max_c max_q |Ĩ_c(q) − Ĩ_c(p)| / (edge_rel · Ī_c)),
     q the four neighbours of p (none beyond the border), Ĩ the 3 × 3 box mean of the image (edge
@@ -168,8 +163,11 @@ def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float
 
 
 def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5,
-                      weight: torch.Tensor | None = None, depth_grad: bool = True) -> torch.Tensor:
-    """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d).
+                      weight: torch.Tensor | None = None, depth_grad: bool = True,
+                      per_gaussian: bool = False) -> torch.Tensor:
+    """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d),
+    or with ``per_gaussian`` of 2DGS's Σ_k w_k (1 − n_k · n_d) = alpha − N · n_d (N the premultiplied
+    blended normal, not renormalised: each Gaussian's misalignment counts with its blending weight).
 
     Args:
         geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
@@ -195,7 +193,10 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
     valid = valid & (alpha > min_alpha)
     if not bool(valid.any()):
         return geo.sum() * 0.0
-    err = (1.0 - (nr * nd).sum(-1)) * alpha  # [H, W]
+    if per_gaussian:
+        err = alpha - (geo[..., 1:4] * nd).sum(-1)  # [H, W] sum_k w_k (1 - n_k . n_d)
+    else:
+        err = (1.0 - (nr * nd).sum(-1)) * alpha  # [H, W]
     w = valid.to(err.dtype) if weight is None else weight.detach().to(err.dtype) * valid
     return (err * w).sum() / w.sum().clamp_min(1e-12)
 

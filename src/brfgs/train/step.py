@@ -20,7 +20,7 @@ from brfgs.model.rendering import (
 from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
-from brfgs.train.losses import (coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
+from brfgs.train.losses import (area_pool, coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
                                 image_edge_weight, masked_psnr, normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
 from brfgs.train.dense_depth import dense_depth_loss
@@ -127,7 +127,8 @@ def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput,
     if c.lambda_normal > 0:
         w = image_edge_weight(batch.target, batch.valid, c.normal_edge_rel) if c.normal_edge_rel > 0 else None
         terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K, weight=w,
-                                                         depth_grad=c.normal_prior_moves_depth))
+                                                         depth_grad=c.normal_prior_moves_depth,
+                                                         per_gaussian=c.normal_prior_per_gaussian))
     if c.lambda_depth_conc > 0:
         terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
     if c.lambda_depth_smooth > 0:
@@ -250,6 +251,16 @@ def supersample_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int)
     return cfg.supersample
 
 
+def coarse_factor_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int) -> int:
+    """Block size 2^k of the coarse-to-fine photometric loss at ``step`` of ``phase``: k falls from
+    ``coarse_levels`` to 1 over ``coarse_until`` of a geometry phase's ``phase_steps``, then 1."""
+    end = cfg.coarse_until * phase_steps
+    if cfg.coarse_levels <= 0 or not phase.trains_geometry or step >= end:
+        return 1
+    k = math.ceil(cfg.coarse_levels * (1 - step / end))
+    return 2 ** min(max(k, 1), cfg.coarse_levels)
+
+
 def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None,
                absgrad: bool, ss: int) -> RenderOutput:
     """Rasterize ``feats`` [N or n, C] of all Gaussians, or of the rows ``subset`` [n], each pixel the
@@ -302,8 +313,10 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
     if phase.renders_colors:
         pred = composite_background(image, out.alpha, state.extra["bg_colors"])
-        loss = stage1_loss(pred, batch.target, batch.valid, c.alpha_dssim)
-        return StepResult(_plus(loss, greg), masked_psnr(pred, batch.target, batch.valid), out)
+        pred, target, valid = area_pool(pred, batch.target, batch.valid,
+                                        coarse_factor_now(c, phase, state.step, phase_steps))
+        loss = stage1_loss(pred, target, valid, c.alpha_dssim)
+        return StepResult(_plus(loss, greg), masked_psnr(pred, target, valid), out)
     if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in state.gaussians:
         greg = c.lambda_normal_smooth * normal_smoothness_loss(state.gaussians["normals"], nbrs)
     if by_gaussian:
