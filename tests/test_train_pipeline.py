@@ -244,20 +244,28 @@ def test_stage1_view_dependent_colours_train_and_load(scene, tmp_path):
 def test_surface_priors_train_and_are_validated(scene, tmp_path):
     """The depth priors of stage 1 (on by default: inverse-depth smoothness; optional: depth
     concentration, the edge-aware depth-normal weight, a depth-normal prior that moves the depth as
-    well as the normals) change the geometry and keep every loss finite; negative weights are refused."""
+    well as the normals, its blended form) change the geometry and keep every loss finite; negative weights are refused."""
     runs = {}
     for name, kw in {"off": dict(lambda_depth_smooth=0.0),
                      "on": dict(lambda_depth_smooth=50.0, lambda_depth_conc=0.5),
                      "edge": dict(lambda_depth_smooth=0.0, lambda_normal=0.05, normal_edge_rel=0.2),
                      "moves_depth": dict(lambda_depth_smooth=0.0, lambda_normal=0.05,
-                                         normal_prior_moves_depth=True)}.items():
+                                         normal_prior_moves_depth=True),
+                     "per_gaussian": dict(lambda_depth_smooth=0.0, lambda_normal=0.05),  # the default form
+                     "blended": dict(lambda_depth_smooth=0.0, lambda_normal=0.05,
+                                     normal_prior_per_gaussian=False)}.items():
         tr = Trainer(scene, tmp_path / name, _cfg(stage1_steps=20, stage2_steps=2, normal_start=0.0, **kw),
                      progress=False, log=None)
         tr.run()
         assert all(math.isfinite(h[2]) for h in tr.history)
         runs[name] = tr.state.gaussians.means.detach().clone()
+        if name in ("per_gaussian", "blended"):
+            assert tr.cfg.normal_prior_per_gaussian == (name == "per_gaussian")
+            runs[name + "_quats"] = tr.state.gaussians.quats.detach().clone()
     for name in ("on", "edge", "moves_depth"):
         assert runs[name].shape != runs["off"].shape or float((runs[name] - runs["off"]).abs().max()) > 0
+    pg, bl = runs["per_gaussian_quats"], runs["blended_quats"]
+    assert pg.shape != bl.shape or float((pg - bl).abs().max()) > 0  # the two forms turn the discs differently
     for field in ("lambda_depth_conc", "lambda_depth_smooth", "normal_edge_rel"):
         with pytest.raises(UserError, match=field):
             _cfg(**{field: -1.0})

@@ -79,6 +79,25 @@ def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
         train(scene, run, _cfg(), progress=False, log=None)
 
 
+def test_a_run_started_before_a_default_changed_resumes_with_its_own_method(scene, tmp_path):
+    """A config.json written before normal_prior_per_gaussian existed trained the blended form: resuming
+    it with today's default is refused naming the option, and resuming with the old form works."""
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, run, _cfg(normal_prior_per_gaussian=False), progress=False,
+              callback=_interrupt_at(("stage1", 7)), log=None)
+    cfg = json.loads((run / "config.json").read_text())
+    del cfg["normal_prior_per_gaussian"]                     # as a run of Session 26 wrote it
+    (run / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(UserError, match="normal_prior_per_gaussian"):
+        train(scene, run, _cfg(), progress=False, log=None)
+    (run / "config.json").write_text("{not json")
+    with pytest.raises(UserError, match="unreadable run options"):
+        train(scene, run, _cfg(), progress=False, log=None)
+    (run / "config.json").write_text(json.dumps(cfg))
+    assert train(scene, run, _cfg(normal_prior_per_gaussian=False), progress=False, log=None).is_file()
+
+
 def test_evaluate_gives_the_digits_of_training(scene, tmp_path):
     run = tmp_path / "run"
     assert main(["train", str(scene), str(run), "--preset", "tiny", "--threads", "1", "--stage1-steps", "6",

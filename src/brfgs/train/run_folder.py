@@ -65,8 +65,9 @@ class RunFolder:
         self.out.mkdir(parents=True, exist_ok=True)
         config = self.out / CONFIG_FILE
         if config.is_file() and self.resume_points():
-            # options added since the run started take their defaults
-            old = json.loads(TrainConfig.from_dict(json.loads(config.read_text()), source=str(config)).to_json())
+            # options added since the run started take their defaults, or the behaviour the run had
+            # before them where the default changed later (BEFORE_OPTION)
+            old = json.loads(TrainConfig.from_run_config(config).to_json())
             new = json.loads(cfg.to_json())
             if old != new:
                 diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))

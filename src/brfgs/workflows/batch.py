@@ -161,7 +161,7 @@ def _config_change(s: BatchScene) -> list[str]:
     path = s.run / CONFIG_FILE
     if not path.is_file():
         return []
-    old = json.loads(TrainConfig.from_dict(json.loads(path.read_text()), source=str(path)).to_json())
+    old = json.loads(TrainConfig.from_run_config(path).to_json())
     new = json.loads(TrainConfig.from_dict(s.config).to_json())
     return sorted(k for k in set(old) | set(new) if k != "threads" and old.get(k) != new.get(k))
 
