@@ -91,8 +91,8 @@ class TrainConfig:
                                            "n_d): each Gaussian on a ray is turned in proportion to its blending "
                                            "weight, so a minority of tilted discs in a stack is not hidden in the "
                                            "ray's blended, renormalised normal (--normal-prior-blended, before "
-                                           "Session 27). Ground normal maps 30-45 % closer to the truth, images "
-                                           "+0.07 dB (docs/method.md).",
+                                           "Session 27). Grass and soil normal maps 30-50 % closer to the truth, "
+                                           "images +0.07 dB (docs/method.md).",
                                            "--normal-prior-per-gaussian/--normal-prior-blended")
     normal_start: float = _opt(0.3, "Fraction of a geometry phase after which the surface priors start.")
     lambda_flat: float = _opt(0.01, "Weight of the flatness loss (smallest/largest scale) while geometry trains (0 = off).")
