@@ -161,11 +161,11 @@ def view_pixels(
     true_depth_m: np.ndarray | None = None,  # [H', W'] m along the optical axis
     render_cube: np.ndarray | None = None,  # [H, W, B]
     truth_cube: np.ndarray | None = None,  # [H, W, B]
-    normal_cam: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,  # normal map [H, W, 3], viewmat, K
+    normal_view: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,  # normal map [H, W, 3], viewmat, K
 ) -> dict[int, dict[str, np.ndarray]]:
     """{material id: {key: per-pixel values [n]}} of one view (keys :data:`KEYS`; "sam" absent
     without cubes; "spread", "dz" and "dn" NaN where α < :data:`MIN_ALPHA`, "dz" and "dn" NaN
-    without true depth, "dn" also without ``normal_cam``: :func:`normal_error_deg`)."""
+    without true depth, "dn" also without ``normal_view``: :func:`normal_error_deg`)."""
     shape = valid.shape
     mat_mean, pure = _block(material, shape)
     ids = np.rint(mat_mean).astype(np.int64)
@@ -178,8 +178,8 @@ def view_pixels(
     if true_depth_m is not None:
         td, _ = _block(np.asarray(true_depth_m, np.float64), shape)
         dz = np.where(solid & (td > 0), depth_m - td, np.nan)
-        if normal_cam is not None:
-            dn = np.where(solid & pure, normal_error_deg(normal_cam[0], normal_cam[1], normal_cam[2], td, ids), np.nan)
+        if normal_view is not None:
+            dn = np.where(solid & pure, normal_error_deg(*normal_view, td, ids), np.nan)
     out = {}
     for k in np.unique(ids[ok]):
         sel = ok & (ids == k)

@@ -32,7 +32,7 @@ def area_pool(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor,
     h, w = pred.shape[0] // f * f, pred.shape[1] // f * f
 
     def pool(x: torch.Tensor) -> torch.Tensor:  # [h, w, C] -> [h/f, w/f, C]
-        return torch.nn.functional.avg_pool2d(x[:h, :w].permute(2, 0, 1)[None], f)[0].permute(1, 2, 0)
+        return F.avg_pool2d(x[:h, :w].permute(2, 0, 1)[None], f)[0].permute(1, 2, 0)
 
     v = valid[:h, :w]
     t = torch.where(v[..., None], target[:h, :w], torch.zeros((), dtype=target.dtype))
@@ -167,7 +167,8 @@ def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, m
                       per_gaussian: bool = False) -> torch.Tensor:
     """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d),
     or with ``per_gaussian`` of 2DGS's Σ_k w_k (1 − n_k · n_d) = alpha − N · n_d (N the premultiplied
-    blended normal, not renormalised: each Gaussian's misalignment counts with its blending weight).
+    blended normal, not renormalised: each Gaussian's misalignment counts with its blending weight;
+    training's default since Session 27, ``TrainConfig.normal_prior_per_gaussian``).
 
     Args:
         geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
