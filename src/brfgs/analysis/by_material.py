@@ -179,7 +179,7 @@ def view_pixels(
         td, _ = _block(np.asarray(true_depth_m, np.float64), shape)
         dz = np.where(solid & (td > 0), depth_m - td, np.nan)
         if normal_view is not None:
-            dn = np.where(solid & pure, normal_error_deg(*normal_view, td, ids), np.nan)
+            dn = np.where(solid, normal_error_deg(*normal_view, td, ids), np.nan)  # impure pixels are not in ok
     out = {}
     for k in np.unique(ids[ok]):
         sel = ok & (ids == k)

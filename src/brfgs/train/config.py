@@ -320,6 +320,11 @@ class TrainConfig:
             raise UserError("run options must be a JSON object", file=str(path), field="config")
         return cls.from_dict({**BEFORE_OPTION, **written}, source=str(path))
 
+    def changed_options(self, other: "TrainConfig", ignore: tuple[str, ...] = ()) -> list[str]:
+        """Names of the options (as config.json writes them) whose values differ from ``other``'s."""
+        a, b = json.loads(self.to_json()), json.loads(other.to_json())
+        return sorted(k for k in set(a) | set(b) if k not in ignore and a.get(k) != b.get(k))
+
     @property
     def total_steps(self) -> int:
         return self.stage1_steps + self.stage2_steps

@@ -67,10 +67,8 @@ class RunFolder:
         if config.is_file() and self.resume_points():
             # options added since the run started take their defaults, or the behaviour the run had
             # before them where the default changed later (BEFORE_OPTION)
-            old = json.loads(TrainConfig.from_run_config(config).to_json())
-            new = json.loads(cfg.to_json())
-            if old != new:
-                diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+            diff = TrainConfig.from_run_config(config).changed_options(cfg)
+            if diff:
                 raise UserError(f"this unfinished run was started with different options ({', '.join(diff)}); "
                                 "rerun with the same options to resume, or pass --overwrite", file=config)
         atomic.write_json(config, cfg.to_dict(), sort_keys=True)

@@ -21,7 +21,6 @@ Ray is optional (``pip install 'brfgs[scale]'``); without it the command says so
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import os
 import socket
@@ -161,9 +160,7 @@ def _config_change(s: BatchScene) -> list[str]:
     path = s.run / CONFIG_FILE
     if not path.is_file():
         return []
-    old = json.loads(TrainConfig.from_run_config(path).to_json())
-    new = json.loads(TrainConfig.from_dict(s.config).to_json())
-    return sorted(k for k in set(old) | set(new) if k != "threads" and old.get(k) != new.get(k))
+    return TrainConfig.from_run_config(path).changed_options(TrainConfig.from_dict(s.config), ignore=("threads",))
 
 
 def plan_scene(s: BatchScene) -> tuple[str, str | None]:
