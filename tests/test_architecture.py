@@ -29,7 +29,8 @@ PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render
 # "lazy:" comment saying why: pycolmap (via brfgs.init.colmap) must follow zlib; mitsuba/drjit (and
 # brfgs.sim's renderer) need DRJIT_LIBLLVM_PATH first; gsplat and lpips are optional; prosail
 # compiles numba code on import; matplotlib's backend is chosen before pyplot loads.
-LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "prosail", "matplotlib", "brfgs.sim", "brfgs.init")
+LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "prosail", "matplotlib", "brfgs.sim", "brfgs.init",
+           "pvlib", "pandas", "pyproj")
 
 
 def layer_of(package: str) -> int:
@@ -144,6 +145,18 @@ def test_importing_the_library_does_not_load_pycolmap_or_mitsuba(module, tmp_pat
     import subprocess
 
     code = f"import sys, {module}; print(sorted(m for m in ('pycolmap', 'mitsuba') if m in sys.modules))"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "[]"
+
+
+def test_reading_scenes_does_not_load_pvlib_pandas_or_pyproj():
+    """pvlib and pandas (~0.6 s) and pyproj load only for timed frames and georeferenced scenes, so
+    that every command (and `brfgs --help`) starts without them."""
+    import subprocess
+
+    code = ("import sys, brfgs.data, brfgs.model, brfgs.cli; "
+            "print(sorted(m for m in ('pvlib', 'pandas', 'pyproj') if m in sys.modules))")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "[]"

@@ -127,7 +127,9 @@ def test_bench_view_times_both_decoders_in_one_run(tmp_path):
         assert v["fused"]["median_s"] > 0 and v["reference"]["median_s"] > 0
         assert v["max_abs_diff_vs_reference"] < 1e-5
         assert v["speedup_vs_reference"] == v["reference"]["median_s"] / v["fused"]["median_s"]
+    assert res["machine"]["backend"] == "cpu" and "gpu" in res["machine"]
     assert main(["bench", "view", "--json", str(tmp_path)]) == 2
+    assert main(["bench", "view", "--backend", "metal", "--size", "16"]) == 2
 
 
 def test_a_pixel_decodes_the_same_in_any_group_of_lanes():

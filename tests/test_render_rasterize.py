@@ -25,12 +25,12 @@ def render(sc, backend, with_normals=True, seed=0):
     out = rasterize(p["means"], p["quats"], p["scales"], p["opacities"], p["features"], sc["viewmat"], sc["K"],
                     sc["width"], sc["height"], backend=backend,
                     normals=p["normals"] if with_normals else None)
-    g = torch.Generator().manual_seed(seed)
-    loss = (out.image * torch.randn(out.image.shape, generator=g).to(out.image.dtype)).sum()
-    loss = loss + (out.alpha * torch.randn(out.alpha.shape, generator=g).to(out.alpha.dtype)).sum()
-    loss = loss + (out.depth * torch.randn(out.depth.shape, generator=g).to(out.depth.dtype)).sum()
+    g = torch.Generator().manual_seed(seed)  # the same weights on every device (drawn on the CPU)
+    loss = (out.image * torch.randn(out.image.shape, generator=g).to(out.image)).sum()
+    loss = loss + (out.alpha * torch.randn(out.alpha.shape, generator=g).to(out.alpha)).sum()
+    loss = loss + (out.depth * torch.randn(out.depth.shape, generator=g).to(out.depth)).sum()
     if with_normals:
-        loss = loss + (out.normal * torch.randn(out.normal.shape, generator=g).to(out.normal.dtype)).sum()
+        loss = loss + (out.normal * torch.randn(out.normal.shape, generator=g).to(out.normal)).sum()
     loss.backward()
     grads = {k: p[k].grad for k in PARAMS if p[k].grad is not None}
     return out, grads, out.meta["means2d"].grad
@@ -187,6 +187,30 @@ def test_cuda_backend_matches_torch():
     for k in g_ref:
         assert rel(g_gpu[k].cpu(), g_ref[k]) < 5e-2, k
     assert m_gpu is not None and m_gpu.shape == (500, 2)
+
+
+def test_cuda_backend_with_a_model_on_the_cpu():
+    """An explicit backend="cuda" on CPU tensors (a model kept on the CPU, `brfgs train --backend
+    cuda`): only the rasterization runs on the GPU; outputs, meta and gradients come back to the
+    CPU and match the torch reference."""
+    from brfgs.render.cuda_backend import available
+
+    if not available():
+        pytest.skip("needs a CUDA GPU and gsplat")
+    sc = random_scene(500, 48, 40, 4, seed=9, max_opacity=0.9)
+    o_ref, g_ref, m_ref = render(sc, "torch")
+    o_cpu, g_cpu, m_cpu = render(sc, "cuda")
+    assert o_cpu.meta["backend"] == "cuda"
+    for name in ("image", "alpha", "depth", "normal"):
+        t = getattr(o_cpu, name)
+        assert t.device.type == "cpu", name
+        assert rel(t, getattr(o_ref, name)) < 2e-2, name
+    for k in ("radii", "visible", "means2d"):
+        assert o_cpu.meta[k].device.type == "cpu", k
+    assert (o_cpu.meta["visible"] == o_ref.meta["visible"]).float().mean() > 0.95
+    for k in g_ref:
+        assert g_cpu[k].device.type == "cpu" and rel(g_cpu[k], g_ref[k]) < 5e-2, k
+    assert m_cpu is not None and m_cpu.device.type == "cpu" and rel(m_cpu, m_ref) < 5e-2
 
 
 @pytest.mark.parametrize("backend", ["torch", "cpu"])

@@ -50,8 +50,10 @@ def render_cmd(
     json_path: Path = typer.Option(None, "--json", help="Also write the rows as JSON to this file."),
 ):
     """Forward and forward+backward ms per frame of each backend, × vs torch (same run), peak memory."""
+    import torch
+
     from brfgs.render import configure_threads
-    from brfgs.render.bench import format_table, run_bench
+    from brfgs.render.bench import format_table, gpu_name, run_bench
 
     be = [b.strip() for b in backends.split(",") if b.strip()]
     for b in be:
@@ -77,7 +79,8 @@ def render_cmd(
     typer.echo(f"load average at end: {load_end[0]:.2f} {load_end[1]:.2f} {load_end[2]:.2f}")
     if json_path is not None:
         doc = {"machine": {"processor": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                           "threads": n_threads, "loadavg_start": list(load), "loadavg_end": list(load_end)},
+                           "threads": n_threads, "loadavg_start": list(load), "loadavg_end": list(load_end),
+                           "gpu": gpu_name(), "torch": torch.__version__},
                "rows": [r.to_json() for r in rows]}
         _write_json(json_path, doc)
         typer.echo(f"wrote {json_path}")
@@ -155,6 +158,8 @@ def bench_view_cmd(
     simulator: bool = typer.Option(False, "--simulator", help="Also time the Mitsuba simulator rendering one "
                                    "view of the same size and bands (needs the sim extra; minutes at 1024²)."),
     threads: int = typer.Option(0, "--threads", min=0, help="numba/torch threads (0: all cores)."),
+    backend: str = typer.Option("cpu", "--backend", help="Rasterizer backend: cpu | torch | cuda (gsplat; the "
+                                "model stays on the CPU, the decoder runs there)."),
     json_path: Path = typer.Option(None, "--json", help="Also write the result as JSON to this file."),
 ) -> None:
     """One arbitrary 164-band view per size: the fused decoder against the reference decoder in
@@ -166,7 +171,10 @@ def bench_view_cmd(
     if json_path is not None and json_path.is_dir():
         raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
     configure_threads(threads or None)
-    res = bench_view(model, n_gaussians=gaussians, sizes=tuple(sizes), repeats=repeats, simulator=simulator)
+    if backend not in ("cpu", "torch", "cuda"):
+        raise UserError(f"unknown backend {backend!r}; expected cpu, torch or cuda", field="--backend")
+    res = bench_view(model, n_gaussians=gaussians, sizes=tuple(sizes), repeats=repeats, simulator=simulator,
+                     backend=backend)
     la = res["machine"]["load_average_1_5_15_before"]
     typer.echo(f"model: {res['model']} ({res['n_gaussians']} Gaussians, {res['bands']} bands); threads "
                f"{res['machine']['numba_threads']}; load average before {la[0]:.1f} on {res['machine']['cpu_count']} cores")

@@ -24,10 +24,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
-from pyproj import CRS, Transformer
-from pyproj.aoi import AreaOfInterest
-from pyproj.database import query_utm_crs_info
-from pyproj.exceptions import CRSError
 
 from brfgs.errors import UserError
 
@@ -76,6 +72,9 @@ def read_georef(meta: dict, tf: Path | None = None) -> tuple[Origin | None, str 
     crs = meta.get("crs")
     if crs is None:
         return origin, None
+    from pyproj import CRS  # lazy: only georeferenced scenes and products need PROJ (pyproj)
+    from pyproj.exceptions import CRSError  # lazy: as CRS
+
     try:
         parsed = CRS.from_user_input(crs) if isinstance(crs, str) else None
     except CRSError as exc:
@@ -87,6 +86,9 @@ def read_georef(meta: dict, tf: Path | None = None) -> tuple[Origin | None, str 
 
 def default_crs(origin: Origin) -> str:
     """'EPSG:326zz' / 'EPSG:327zz': the WGS 84 / UTM zone of the origin (pyproj's database)."""
+    from pyproj.aoi import AreaOfInterest  # lazy: as in read_georef
+    from pyproj.database import query_utm_crs_info  # lazy: as in read_georef
+
     lon, lat = origin.longitude_deg, origin.latitude_deg
     info = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat))
     north = [i for i in info if (i.code.startswith("326") if lat >= 0 else i.code.startswith("327"))]
@@ -103,6 +105,8 @@ class MapFrame:
 
     @cached_property
     def _enu(self):
+        from pyproj import Transformer  # lazy: as in read_georef
+
         o = self.origin
         return Transformer.from_pipeline(
             "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=cart +ellps=WGS84 "
@@ -111,6 +115,8 @@ class MapFrame:
 
     @cached_property
     def _map(self):
+        from pyproj import Transformer  # lazy: as in read_georef
+
         return Transformer.from_crs("EPSG:4979", self.crs, always_xy=True)
 
     def enu_to_lonlat(self, xyz_m: ArrayLike) -> np.ndarray:  # [N, 3] m -> [N, 3] (lon deg, lat deg, h m)

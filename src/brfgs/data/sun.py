@@ -16,14 +16,16 @@ otherwise.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-import pvlib
 
 from brfgs.data import validation as V
 from brfgs.data.georef import Origin
 from brfgs.errors import UserError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["solar_position", "frame_suns"]
 
@@ -31,6 +33,9 @@ __all__ = ["solar_position", "frame_suns"]
 def solar_position(times_utc: list[str] | pd.DatetimeIndex, origin: Origin) -> tuple[np.ndarray, np.ndarray]:
     """(zenith deg, azimuth deg clockwise from north) [N] of the sun at ``origin`` at the given times
     (NREL SPA via pvlib; standard atmosphere at the origin's altitude, 12 °C)."""
+    import pandas as pd  # lazy: pvlib and pandas take ~0.6 s to import, and only timed frames need them
+    import pvlib  # lazy: as pandas
+
     t = pd.DatetimeIndex(times_utc)
     pressure = pvlib.atmosphere.alt2pres(origin.altitude_m)
     sp = pvlib.solarposition.get_solarposition(t, origin.latitude_deg, origin.longitude_deg,
@@ -40,6 +45,8 @@ def solar_position(times_utc: list[str] | pd.DatetimeIndex, origin: Origin) -> t
 
 
 def _parse_time(v, tf: Path, field: str) -> pd.Timestamp:
+    import pandas as pd  # lazy: as in solar_position
+
     try:
         t = pd.Timestamp(v) if isinstance(v, str) else None
     except (ValueError, TypeError):

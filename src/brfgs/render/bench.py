@@ -13,6 +13,10 @@ than the reference, measured in the same run). ``cpu_ms_median``: process CPU ti
 summed over threads (less sensitive to other users of a shared machine than wall time).
 Peak memory: the highest resident-set size sampled every ~2 ms during a frame minus the RSS
 just before it, after returning freed heap memory to the OS (MiB; approximate).
+
+``cuda`` (gsplat): the scene lives on the GPU, each frame ends with ``torch.cuda.synchronize()``,
+and its peak memory is the GPU's (``torch.cuda.max_memory_allocated`` during the frame minus the
+memory allocated before it).
 """
 
 from __future__ import annotations
@@ -51,6 +55,11 @@ class BenchRow:
         d = asdict(self)
         d["pass"] = d.pop("pass_")
         return d
+
+
+def gpu_name() -> str | None:
+    """The name of the CUDA device torch uses (a benchmark's record), or None without one."""
+    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
 
 
 def _trim() -> None:
@@ -92,6 +101,30 @@ class _PeakRSS:
         return self.peak - self.base
 
 
+class _PeakCUDA:
+    """GPU memory allocated by torch during a frame above what was allocated before it."""
+
+    def __enter__(self):
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
+        self.base = torch.cuda.memory_allocated()
+        return self
+
+    def __exit__(self, *exc):
+        self.peak = torch.cuda.max_memory_allocated()
+
+    @property
+    def mib(self) -> float:
+        return (self.peak - self.base) / 2**20
+
+
+def _on_device(sc: dict, backend: str) -> dict:
+    """The scene ``sc`` with its tensors where ``backend`` renders (the GPU for ``cuda``)."""
+    if backend != "cuda":
+        return sc
+    return {k: (v.to("cuda") if isinstance(v, torch.Tensor) else v) for k, v in sc.items()}
+
+
 def _frame(sc, backend: str, backward: bool, params=None):
     """One render of the scene ``sc`` (with ``params``, then backward of Σ image + Σ depth, when ``backward``)."""
     if backward:
@@ -105,6 +138,8 @@ def _frame(sc, backend: str, backward: bool, params=None):
         with torch.no_grad():
             rasterize(sc["means"], sc["quats"], sc["scales"], sc["opacities"], sc["features"], sc["viewmat"],
                       sc["K"], sc["width"], sc["height"], backend=backend)
+    if backend == "cuda":
+        torch.cuda.synchronize()
 
 
 def run_bench(sizes: tuple[int, ...] = (128, 256), gaussians: tuple[int, ...] = (10_000, 20_000, 50_000, 200_000),
@@ -126,14 +161,15 @@ def run_bench(sizes: tuple[int, ...] = (128, 256), gaussians: tuple[int, ...] = 
             for N in sorted(gaussians):
                 sc = ground_scene(N, size, size, C, seed=seed)
                 bes = [b for b in backends if not (b == "torch" and torch_stopped)]
+                scs = {b: _on_device(sc, b) for b in bes}
                 for backward in (False, True):
                     pass_name = "forward+backward" if backward else "forward"
-                    params = {b: {k: sc[k].clone().requires_grad_(True)
+                    params = {b: {k: scs[b][k].clone().requires_grad_(True)
                                   for k in ("means", "quats", "scales", "opacities", "features")} for b in bes}
                     active = []
                     for b in bes:  # warm-up (and the torch time limit)
                         t0 = time.perf_counter()
-                        _frame(sc, b, backward, params[b])
+                        _frame(scs[b], b, backward, params[b])
                         dt = time.perf_counter() - t0
                         if b == "torch" and dt > torch_limit_s:
                             torch_stopped = True
@@ -147,10 +183,10 @@ def run_bench(sizes: tuple[int, ...] = (128, 256), gaussians: tuple[int, ...] = 
                     for _ in range(repeats):
                         for b in active:
                             _trim()
-                            with _PeakRSS() as mem:
+                            with (_PeakCUDA() if b == "cuda" else _PeakRSS()) as mem:
                                 t0 = time.perf_counter()
                                 c0 = time.process_time()
-                                _frame(sc, b, backward, params[b])
+                                _frame(scs[b], b, backward, params[b])
                                 cpu_times[b].append(1000 * (time.process_time() - c0))
                                 times[b].append(1000 * (time.perf_counter() - t0))
                             peaks[b] = max(peaks[b], mem.mib)

@@ -42,9 +42,12 @@ def rasterize_cuda(
     height: int,  # px
     normals: Tensor | None = None,  # [N, 3] or None
     absgrad: bool = False,  # gsplat's absgrad: meta["means2d"].absgrad after the backward pass
+    meta_device: torch.device | None = None,  # where meta's tensors live (None: the GPU)
 ) -> tuple[Tensor, Tensor, Tensor, Tensor | None, dict]:  # image [H, W, C], alpha, depth [H, W], normal, meta
     """Render with gsplat's ``rasterization`` (expected depth, normals as extra channels, between
-    brfgs' near and far planes)."""
+    brfgs' near and far planes). With ``meta_device`` (a model kept on the CPU) ``meta``'s
+    means2d, radii, visible and depths are copies there, and the backward pass writes
+    ``means2d.grad`` / ``.absgrad`` onto that copy."""
     from gsplat import rasterization  # lazy: optional CUDA extension, brfgs[cuda]
 
     dev = means.device
@@ -62,16 +65,17 @@ def rasterize_cuda(
     normal = render[..., C:C + 3] if normals is not None else None
     depth = render[..., -1]              # expected depth Σ w z / Σ w
     m2d_b = gmeta["means2d"]             # [1, N, 2]
-    means2d = m2d_b[0]
+    # a leaf [N, 2] that receives the gradient of gsplat's batched tensor (on the GPU, or a CPU copy)
+    means2d = m2d_b[0].detach().to(meta_device or m2d_b.device)
     if m2d_b.requires_grad:
-        # gsplat's graph uses the batched tensor; mirror its gradient onto the [N, 2] view.
         def _hook(grad, _view=means2d):
-            g = grad[0].detach()
+            g = grad[0].detach().to(_view.device)
             _view.grad = g.clone() if _view.grad is None else _view.grad + g
             ab = getattr(m2d_b, "absgrad", None)  # set by gsplat's backward before this hook runs
             if ab is not None:  # summed over backward passes, as .grad (and as the CPU backends do)
+                ab = ab[0].detach().to(_view.device)
                 prev = getattr(_view, "absgrad", None)
-                _view.absgrad = ab[0].detach().clone() if prev is None else prev + ab[0].detach()
+                _view.absgrad = ab.clone() if prev is None else prev + ab
             return grad
 
         m2d_b.register_hook(_hook)
@@ -81,6 +85,10 @@ def rasterize_cuda(
         radii = torch.where(visible, radii.max(dim=-1).values, torch.zeros_like(radii[:, 0]))
     else:                                # gsplat 1.4: [N]
         visible = radii > 0
+    depths = gmeta.get("depths", None)
+    if meta_device is not None:
+        radii, visible = radii.to(meta_device), visible.to(meta_device)
+        depths = None if depths is None else depths.detach().to(meta_device)
     meta = {"means2d": means2d, "radii": radii.to(torch.int32), "visible": visible,
-            "depths": gmeta.get("depths", None), "backend": "cuda", "gsplat_meta": gmeta}
+            "depths": depths, "backend": "cuda", "gsplat_meta": gmeta}
     return image, alpha, depth, normal, meta

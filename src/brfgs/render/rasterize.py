@@ -201,13 +201,18 @@ def antialias_opacities(
 
 def _rasterize_cuda(g: _Splats, viewmat: Tensor, K: Tensor, width: int, height: int,
                     absgrad: bool) -> RenderOutput:
-    """gsplat on the GPU; CPU inputs (an explicit backend="cuda") are moved there differentiably."""
-    if g.means.device.type != "cuda":
+    """gsplat on the GPU. CPU inputs (an explicit backend="cuda", a model kept on the CPU) are moved
+    there and the outputs and meta back, differentiably: only the rasterization runs on the GPU."""
+    home = g.means.device
+    if home.type != "cuda":
         dev = torch.device("cuda")
         g = _Splats(*(None if t is None else t.to(dev) for t in g))
     image, alpha, depth, normal, meta = cuda_backend.rasterize_cuda(
         g.means, g.quats, g.scales, g.opacities, g.features, viewmat, K, width, height,
-        normals=g.normals, absgrad=absgrad)
+        normals=g.normals, absgrad=absgrad, meta_device=None if home.type == "cuda" else home)
+    if home.type != "cuda":
+        image, alpha, depth = image.to(home), alpha.to(home), depth.to(home)
+        normal = None if normal is None else normal.to(home)
     return RenderOutput(image, alpha, depth, normal, meta)
 
 
