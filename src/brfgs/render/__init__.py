@@ -12,7 +12,9 @@ Backends
            stable depth sort, tile binning, tile rasterization iterating each Gaussian only over
            the row spans of its α ≥ 1/255 ellipse, and a race-free hand-written backward (one
            gradient row per tile–Gaussian entry, reduced per Gaussian afterwards).
-``cuda``   gsplat's CUDA ``rasterization`` (needs a GPU and ``pip install brfgs[cuda]``).
+``cuda``   gsplat's CUDA ``rasterization`` (needs a GPU and ``pip install brfgs[cuda]``). CPU inputs
+           (a model kept on the CPU, as ``brfgs train/render --backend cuda``) are moved to the GPU
+           and the outputs, meta and gradients back: only the rasterization runs there.
 ``auto``   ``cuda`` when the inputs are CUDA tensors, else ``cpu``.
 
 Semantics (all backends; details in ``brfgs.render._common``): EWA projection with the 0.3 px²
