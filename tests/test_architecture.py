@@ -28,7 +28,8 @@ PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render
 # Dependencies that may be imported inside functions (heavy, optional or trap-prone), with a
 # "lazy:" comment saying why: pycolmap (via brfgs.init.colmap) must follow zlib; mitsuba/drjit (and
 # brfgs.sim's renderer) need DRJIT_LIBLLVM_PATH first; gsplat and lpips are optional; prosail
-# compiles numba code on import; matplotlib's backend is chosen before pyplot loads.
+# compiles numba code on import; matplotlib's backend is chosen before pyplot loads; pvlib, pandas
+# and pyproj (~0.7 s together) serve only timed frames and georeferenced scenes.
 LAZY_OK = ("pycolmap", "mitsuba", "drjit", "gsplat", "lpips", "prosail", "matplotlib", "brfgs.sim", "brfgs.init",
            "pvlib", "pandas", "pyproj")
 

@@ -45,9 +45,9 @@ def rasterize_cuda(
     meta_device: torch.device | None = None,  # where meta's tensors live (None: the GPU)
 ) -> tuple[Tensor, Tensor, Tensor, Tensor | None, dict]:  # image [H, W, C], alpha, depth [H, W], normal, meta
     """Render with gsplat's ``rasterization`` (expected depth, normals as extra channels, between
-    brfgs' near and far planes). With ``meta_device`` (a model kept on the CPU) ``meta``'s
-    means2d, radii, visible and depths are copies there, and the backward pass writes
-    ``means2d.grad`` / ``.absgrad`` onto that copy."""
+    brfgs' near and far planes). ``meta["means2d"]`` is a leaf [N, 2] of its own onto which the
+    backward pass writes ``.grad`` and ``.absgrad`` (summed over backward passes); with
+    ``meta_device`` (a model kept on the CPU) it, radii, visible and depths live there."""
     from gsplat import rasterization  # lazy: optional CUDA extension, brfgs[cuda]
 
     dev = means.device
