@@ -32,7 +32,7 @@ from brfgs.brdf.head import HeadConfig, init_head_params
 from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.model.gaussians import GaussianModel
-from brfgs.render.bench import gpu_name
+from brfgs.render.bench import accelerator_record
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.spectral.fast_decode import reference_decoding
 
@@ -101,7 +101,7 @@ def _timed(fn: Callable[[], object], repeats: int) -> tuple[list[float], list[fl
 def machine_record(backend: str, load_before: tuple[float, float, float]) -> dict:
     """Machine, threads, backend and load averages before and after a benchmark (its JSON record)."""
     return {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count(),
-            "gpu": gpu_name(), "torch": str(torch.__version__),
+            **accelerator_record(),
             "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(), "backend": backend,
             "openmp_env": {k: os.environ[k] for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT") if k in os.environ},
             "load_average_1_5_15_before": list(load_before), "load_average_1_5_15_after": list(os.getloadavg())}

@@ -36,6 +36,12 @@ def _int_list(text: str, field: str) -> list[int]:
     return vals
 
 
+def _check_backend(name: str, flag: str) -> None:
+    """A benchmark times one named rasterizer backend: torch, cpu or cuda (not "auto")."""
+    if name not in ("torch", "cpu", "cuda"):
+        raise UserError(f"unknown backend {name!r}; expected torch, cpu or cuda", field=flag)
+
+
 @bench_app.command("render")
 def render_cmd(
     sizes: str = typer.Option("128,256", "--sizes", help="Square image sizes in pixels, comma-separated."),
@@ -50,15 +56,12 @@ def render_cmd(
     json_path: Path = typer.Option(None, "--json", help="Also write the rows as JSON to this file."),
 ):
     """Forward and forward+backward ms per frame of each backend, × vs torch (same run), peak memory."""
-    import torch
-
     from brfgs.render import configure_threads
-    from brfgs.render.bench import format_table, gpu_name, run_bench
+    from brfgs.render.bench import accelerator_record, format_table, run_bench
 
     be = [b.strip() for b in backends.split(",") if b.strip()]
     for b in be:
-        if b not in ("torch", "cpu", "cuda"):
-            raise UserError(f"unknown backend {b!r}; expected torch, cpu or cuda", field="--backends")
+        _check_backend(b, "--backends")
     if json_path is not None and json_path.exists() and json_path.is_dir():
         raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
     n_threads = configure_threads(threads or None)
@@ -80,7 +83,7 @@ def render_cmd(
     if json_path is not None:
         doc = {"machine": {"processor": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                            "threads": n_threads, "loadavg_start": list(load), "loadavg_end": list(load_end),
-                           "gpu": gpu_name(), "torch": torch.__version__},
+                           **accelerator_record()},
                "rows": [r.to_json() for r in rows]}
         _write_json(json_path, doc)
         typer.echo(f"wrote {json_path}")
@@ -171,8 +174,7 @@ def bench_view_cmd(
     if json_path is not None and json_path.is_dir():
         raise UserError("is a folder; expected a JSON file path", file=json_path, field="--json")
     configure_threads(threads or None)
-    if backend not in ("cpu", "torch", "cuda"):
-        raise UserError(f"unknown backend {backend!r}; expected cpu, torch or cuda", field="--backend")
+    _check_backend(backend, "--backend")
     res = bench_view(model, n_gaussians=gaussians, sizes=tuple(sizes), repeats=repeats, simulator=simulator,
                      backend=backend)
     la = res["machine"]["load_average_1_5_15_before"]

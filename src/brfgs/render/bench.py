@@ -57,9 +57,9 @@ class BenchRow:
         return d
 
 
-def gpu_name() -> str | None:
-    """The name of the CUDA device torch uses (a benchmark's record), or None without one."""
-    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+def accelerator_record() -> dict:
+    """A benchmark record's torch version and the name of the CUDA device torch uses (None without one)."""
+    return {"gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None, "torch": str(torch.__version__)}
 
 
 def _trim() -> None:
