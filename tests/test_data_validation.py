@@ -109,9 +109,9 @@ def test_nan_pixels_reported_not_fatal(scene, tmp_path, capsys):
 
 def test_reflectance_out_of_range(scene, tmp_path, capsys):
     cube = np.full((16, 24, 6), 0.2, np.float32)
-    cube[4, 4, 0] = 42.0
+    cube[4:8, :, 0] = 42.0          # 96 of 384 pixels: more than a glint (tests/test_data_values.py)
     write_envi(scene / "images" / "view_03.hdr", cube, np.linspace(420, 880, 6))
-    expect_error(scene, tmp_path, capsys, "view_03.hdr", "frame 'view_03'", "1 pixel values outside",
+    expect_error(scene, tmp_path, capsys, "view_03.hdr", "frame 'view_03'", "96 of 384 pixels (25.0 %)",
                  "--value-range")
     # glint above 1 and small negatives are accepted by default; the range is configurable
     rc, err = run_inspect(scene, tmp_path, capsys, "--value-range", "-1,50")

@@ -14,12 +14,13 @@ import numpy as np
 import spectral.io.envi as envi
 import tifffile
 
-from brfgs.data.validation import confined, header_matches, pixel_range
+from brfgs.data.validation import RangeTally, confined, header_matches
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
+GDAL_NODATA_TAG = 42113   # GeoTIFF tag (ASCII) of the no-data value, as GDAL and rasterio write it
 
 
 def write_envi(path_hdr: str | Path, cube: np.ndarray, wavelengths_nm, fwhm_nm=None,
@@ -92,6 +93,8 @@ class CubeSource:
     samples: int
     bands: int
     band_axis_first: bool = False   # GeoTIFF stored as [B, H, W]
+    nodata: float | None = None     # stored value that marks a pixel without data (read as NaN)
+    scale: float = 1.0              # stored value / scale = reflectance (ENVI "reflectance scale factor")
 
 
 # ENVI data types brfgs reads (header "data type" code -> numpy type); byte order 0 or 1 is honoured.
@@ -107,6 +110,29 @@ def _header_int(hdr: dict, key: str, path: Path, lo: int) -> int:
     if text is None or not text.isdigit() or len(text) > 12 or int(text) < lo:
         raise UserError(f"expected an integer >= {lo}, found {v!r}", file=path, field=key)
     return int(text)
+
+
+def _header_number(value, path: Path, field: str, *, positive: bool = False, nan_ok: bool = False) -> float:
+    """A number from a header field (ENVI or a GeoTIFF's GDAL_NODATA); UserError naming the field otherwise."""
+    text = value.strip() if isinstance(value, str) else value
+    try:
+        x = float(text)
+    except (TypeError, ValueError):
+        x = None
+    if x is None or (np.isnan(x) and not nan_ok) or np.isinf(x) or (positive and not x > 0):
+        want = "a positive number" if positive else "a number" + (" or nan" if nan_ok else "")
+        raise UserError(f"expected {want}, found {value!r}", file=path, field=field)
+    return x
+
+
+def envi_value_meaning(hdr: dict, path: Path) -> tuple[float | None, float]:
+    """(no-data value or None, reflectance scale factor) of an ENVI header: ``data ignore value``
+    marks pixels without data; stored values divided by ``reflectance scale factor`` are reflectance."""
+    nodata = hdr.get("data ignore value")
+    nodata = None if nodata is None else _header_number(nodata, path, "data ignore value", nan_ok=True)
+    scale = hdr.get("reflectance scale factor")
+    scale = 1.0 if scale is None else _header_number(scale, path, "reflectance scale factor", positive=True)
+    return nodata, scale
 
 
 def check_envi_header(hdr: dict, path: Path, frame: str) -> tuple[int, int, int, int]:
@@ -146,11 +172,12 @@ def _open_envi(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_l
     if img.stat().st_size != expected:
         raise UserError(f"frame '{frame}': data file is {img.stat().st_size} bytes, the header describes "
                         f"{expected} (header offset + lines x samples x bands x {nbytes} bytes)", file=img)
+    nodata, scale = envi_value_meaning(hdr, path)      # before SPy, which parses them less strictly
     try:
         envi.open(str(path), str(img))
     except Exception as exc:
         raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
-    return CubeSource("envi", path, lines, samples, n_bands)
+    return CubeSource("envi", path, lines, samples, n_bands, nodata=nodata, scale=scale)
 
 
 def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_links: bool = False) -> CubeSource:
@@ -175,12 +202,15 @@ def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_li
         try:
             with tifffile.TiffFile(path) as t:
                 shape = t.series[0].shape
+                tag = t.pages[0].tags.get(GDAL_NODATA_TAG)
+                nodata_text = None if tag is None else str(tag.value).strip("\x00 ")
         except Exception as exc:
             raise UserError(f"frame '{frame}': unreadable GeoTIFF ({exc})", file=path) from None
+        nodata = None if nodata_text is None else _header_number(nodata_text, path, "GDAL_NODATA", nan_ok=True)
         if len(shape) == 3 and shape[0] == n_bands and shape[2] != n_bands:
-            return CubeSource("tiff", path, shape[1], shape[2], n_bands, band_axis_first=True)
+            return CubeSource("tiff", path, shape[1], shape[2], n_bands, band_axis_first=True, nodata=nodata)
         if len(shape) == 3 and shape[2] == n_bands:
-            return CubeSource("tiff", path, shape[0], shape[1], n_bands)
+            return CubeSource("tiff", path, shape[0], shape[1], n_bands, nodata=nodata)
         raise UserError(f"frame '{frame}': expected {n_bands} bands, found shape {shape}", file=path, field="shape")
     raise UserError(f"frame '{frame}': unsupported cube format {suffix!r} (expected .hdr, .npy, .tif)",
                     file=tf, field="file_path")
@@ -200,12 +230,17 @@ def _raw_array(src: CubeSource):
 
 
 def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: int,
-                         value_range: tuple[float, float], frame: str) -> np.ndarray:
+                         value_range: tuple[float, float], frame: str,
+                         tally: RangeTally | None = None) -> np.ndarray:
     """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
 
-    The memory map is reopened for each block and dropped after it, so the pages it touched
-    leave the process's resident set: peak memory is one block, not the cube.
+    Stored no-data values become NaN and stored values are divided by the source's scale. Values
+    outside ``value_range`` are counted in ``tally`` (brfgs.data.validation.RangeTally: those
+    below it masked, a frame with too many refused). The memory map is reopened for each block and
+    dropped after it, so the pages it touched leave the process's resident set: peak memory is one
+    block, not the cube.
     """
+    tally = RangeTally(value_range) if tally is None else tally
     x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
     out_h, out_w = rh // factor, rw // factor
     nb = len(file_bands)
@@ -220,14 +255,28 @@ def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: in
             rows = slice(y0 + r0 * factor, y0 + r1 * factor)
             cols = slice(x0, x0 + out_w * factor)
             block = raw[rows, cols] if contiguous else raw[rows, cols][:, :, file_bands]
-            block = np.asarray(block, dtype=np.float32)
+            block = _as_reflectance(block, src)
             del raw
-            pixel_range(block, value_range, src.path, frame)
+            tally.add(block)
             if factor > 1:
                 block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
             out[r0:r1] = block
+        tally.check(src.path, frame)
     except UserError:
         raise
     except (OSError, ValueError) as exc:
         raise UserError(f"frame '{frame}': could not read cube data ({exc})", file=src.path) from None
+    return out
+
+
+def _as_reflectance(block: np.ndarray, src: CubeSource) -> np.ndarray:
+    """Stored values [h, w, b] as a new float32 reflectance array: no-data values NaN, divided by the scale."""
+    out = np.array(block, dtype=np.float32)   # a copy: the memory map is read-only
+    if src.nodata is not None and not np.isnan(src.nodata):
+        stored = np.asarray(block)
+        # compare in the stored type: a float32 no-data written as text rounds back to itself
+        marker = stored.dtype.type(src.nodata) if stored.dtype.kind == "f" else src.nodata
+        out[stored == marker] = np.nan
+    if src.scale != 1.0:
+        out = out / np.float32(src.scale)
     return out

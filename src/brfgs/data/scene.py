@@ -24,6 +24,7 @@ from brfgs.data import validation as V
 from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
+from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
@@ -79,6 +80,7 @@ class Scene:
     _file_wavelengths: np.ndarray | None = field(default=None, repr=False)  # [B_file] before the subset
     allow_outside_links: bool = False       # files that links lead to outside the scene folder may be read
     invalid_counts: dict[str, int] = field(default_factory=dict)   # NaN/Inf pixels per frame (as loaded)
+    bright_counts: dict[str, int] = field(default_factory=dict)    # pixels above value_range per frame (kept)
     origin: Origin | None = None            # the ENU frame on the Earth (brfgs.data.georef), if given
     crs: str | None = None                  # map CRS of products (default: the origin's UTM zone)
 
@@ -170,16 +172,20 @@ class Scene:
 
         ``bands`` indexes the scene's (already subset) bands; default all. Downscale and
         ROI are applied while reading; a downscaled pixel containing a NaN/Inf input pixel is
-        NaN. Raises UserError for values outside ``value_range``.
+        NaN. Values below ``value_range`` are masked (NaN) and values above it kept and counted
+        (``bright_counts``: specular glints), as long as they are at most 1 % of the frame's
+        pixels; more raises UserError (brfgs.data.validation.RangeTally).
         """
         src = self._sources[i]
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
-        cube = self._read(i, src, file_bands, self.value_range)
+        tally = RangeTally(self.value_range)
+        cube = self._read(i, src, file_bands, tally)
         if self.frames[i].irradiance_scale != 1.0:   # reflectance under the nominal irradiance
             cube /= np.float32(self.frames[i].irradiance_scale)
         n_bad = int((~np.isfinite(cube)).any(-1).sum())
         if bands is None:
             self.invalid_counts[self.frames[i].name] = n_bad
+            self.bright_counts[self.frames[i].name] = tally.n_high
         if n_bad:
             cube[~np.isfinite(cube)] = np.nan
         return cube
@@ -201,15 +207,16 @@ class Scene:
         if (src.lines, src.samples) != (self._sources[i].lines, self._sources[i].samples):
             raise UserError(f"truth cube is {src.samples}x{src.lines}, the image "
                             f"{self._sources[i].samples}x{self._sources[i].lines}", file=hdr)
-        return self._read(i, src, self.band_indices, (-np.inf, np.inf))
+        return self._read(i, src, self.band_indices, RangeTally((-np.inf, np.inf)))
 
-    def _read(self, i: int, src: CubeSource, file_bands: np.ndarray, value_range) -> np.ndarray:
+    def _read(self, i: int, src: CubeSource, file_bands: np.ndarray, tally: RangeTally) -> np.ndarray:
         """Bands of frame ``i``'s cube on the scene's pinhole camera, ROI and downscale applied; a frame
         with its own camera is read whole and resampled first (brfgs.data.undistort)."""
         cam = self.frames[i].camera
         if cam is None or (src.lines, src.samples) != (cam.intrinsics.h, cam.intrinsics.w):
-            return read_block_averaged(src, file_bands, self.roi, self.downscale, value_range, self.frames[i].name)
-        full = read_block_averaged(src, file_bands, None, 1, value_range, self.frames[i].name)
+            return read_block_averaged(src, file_bands, self.roi, self.downscale, tally.value_range,
+                                       self.frames[i].name, tally)
+        full = read_block_averaged(src, file_bands, None, 1, tally.value_range, self.frames[i].name, tally)
         full = resample_cube(full, cam, self.full_intrinsics)
         x0, y0, rw, rh = self.roi if self.roi is not None else (0, 0, full.shape[1], full.shape[0])
         f = self.downscale

@@ -41,6 +41,7 @@ class SceneSummary:
     mean_reflectance: list[float] = field(default_factory=list)
     snr: list[float] = field(default_factory=list)
     invalid_pixels: dict[str, int] = field(default_factory=dict)
+    bright_pixels: dict[str, int] = field(default_factory=dict)  # pixels above the plausible range (kept)
     rings: dict[str, list[int]] = field(default_factory=dict)  # view ring -> [n train, n test]
     flight: dict = field(default_factory=dict)  # per-frame suns, times, irradiance scales, cameras, georeference
 
@@ -81,7 +82,7 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
-        invalid_pixels=dict(scene.invalid_counts), rings=_ring_counts(scene), flight=_flight(scene))
+        invalid_pixels=dict(scene.invalid_counts), bright_pixels=dict(scene.bright_counts), rings=_ring_counts(scene), flight=_flight(scene))
 
 
 def _flight(scene: Scene) -> dict:
@@ -151,6 +152,11 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
     lines.append(f"NaN/Inf pixels   {n_bad} in {len(bad_frames)} frame(s)"
                  + (": " + ", ".join(f"{k}={v}" for k, v in list(bad_frames.items())[:6]) if bad_frames else "")
                  + (" (masked out of every loss and metric)" if n_bad else ""))
+    bright = {k: v for k, v in s.bright_pixels.items() if v}
+    if bright:
+        lines.append(f"above the range  {sum(bright.values())} pixel(s) in {len(bright)} frame(s): "
+                     + ", ".join(f"{k}={v}" for k, v in list(bright.items())[:6])
+                     + " (kept: specular glints; at most 1 % of a frame's pixels)")
     lines.append("")
     lines.append(f"{'band':>5} {'wavelength_nm':>14} {'mean_refl':>10} {'sigma':>10} {'snr':>9}")
     idx = np.unique(np.linspace(0, s.n_bands - 1, min(max_band_rows, s.n_bands)).round().astype(int))

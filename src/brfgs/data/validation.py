@@ -169,15 +169,49 @@ def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transfor
                             field="wavelength")
 
 
-def pixel_range(block: np.ndarray, value_range: tuple[float, float], cube_file: Path, frame: str) -> None:
-    """Finite reflectances in ``block`` lie inside ``value_range``; NaN/Inf are allowed (masked later)."""
-    lo, hi = value_range
-    finite = np.isfinite(block)
-    bad = finite & ((block < lo) | (block > hi))
-    n_bad = int(bad.sum())
-    if n_bad:
-        vals = block[bad]
-        raise UserError(f"frame '{frame}': {n_bad} pixel values outside the plausible reflectance range "
-                        f"[{lo:g}, {hi:g}] (found min {vals.min():.4g}, max {vals.max():.4g}); is the cube in "
-                        f"reflectance units? Widen the range with --value-range if these values are real",
-                        file=cube_file, field="reflectance")
+# A unit error (digital numbers, radiance, percent) moves most of a frame's values out of the
+# plausible range; a specular glint (water, glass, car paint: BRF 10-100 at a pixel) or a dead
+# pixel moves a few. More than this share of a frame's pixels outside the range is refused.
+OUTLIER_PIXEL_SHARE = 0.01
+
+
+class RangeTally:
+    """Pixels of one frame outside the plausible reflectance range, counted over its row blocks.
+
+    ``add`` takes each block [h, w, b] as read (NaN/Inf allowed: they are masked elsewhere),
+    masks the values below the range in place (no surface reflects less than nothing: such values
+    are sensor artefacts) and counts the pixels with a value above it (kept: glints are data).
+    ``check`` refuses the frame when more than ``OUTLIER_PIXEL_SHARE`` of its pixels were outside.
+    """
+
+    def __init__(self, value_range: tuple[float, float]):
+        self.value_range = value_range
+        self.lo, self.hi = value_range
+        self.n_pixels = self.n_low = self.n_high = 0
+        self.low_min, self.high_max = np.inf, -np.inf
+
+    def add(self, block: np.ndarray) -> None:
+        """Count (and mask the low values of) one float block [h, w, b], in place."""
+        self.n_pixels += block.shape[0] * block.shape[1]
+        with np.errstate(invalid="ignore"):
+            low, high = block < self.lo, block > self.hi       # NaN compares False
+        if low.any():
+            self.n_low += int(low.any(-1).sum())
+            self.low_min = min(self.low_min, float(block[low].min()))
+            block[low] = np.nan
+        if high.any():
+            self.n_high += int(high.any(-1).sum())
+            self.high_max = max(self.high_max, float(block[high].max()))
+
+    def check(self, cube_file: Path, frame: str) -> None:
+        """UserError when more than OUTLIER_PIXEL_SHARE of the frame's pixels were outside the range."""
+        n_out = self.n_low + self.n_high
+        if n_out <= OUTLIER_PIXEL_SHARE * max(self.n_pixels, 1):
+            return
+        found = ", ".join(s for s in (f"min {self.low_min:.4g}" if self.n_low else "",
+                                      f"max {self.high_max:.4g}" if self.n_high else "") if s)
+        raise UserError(f"frame '{frame}': {n_out} of {self.n_pixels} pixels ({100 * n_out / self.n_pixels:.1f} %) "
+                        f"have values outside the plausible reflectance range [{self.lo:g}, {self.hi:g}] "
+                        f"(found {found}; up to {100 * OUTLIER_PIXEL_SHARE:g} % are accepted as glints or "
+                        f"bad pixels); is the cube in reflectance units? Widen the range with --value-range "
+                        f"if these values are real", file=cube_file, field="reflectance")
