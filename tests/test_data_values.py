@@ -15,10 +15,10 @@ import brfgs.data.cube_io as cube_io
 from brfgs.cli import main
 from brfgs.data.cube_io import write_envi
 from brfgs.data.scene import read_scene
-from brfgs.data.validation import OUTLIER_PIXEL_SHARE, RangeTally
+from brfgs.data.validation import BAD_PIXEL_SHARE, GLINT_PIXEL_SHARE, RangeTally
 from brfgs.errors import UserError
 
-H, W, B = 16, 24, 6          # make_scene's cubes: 384 pixels, 1 % of them is 3.84
+H, W, B = 16, 24, 6          # make_scene's cubes: 384 pixels (5 % of them: 19.2, 1 %: 3.84)
 WL = np.linspace(420.0, 880.0, B)
 
 
@@ -68,14 +68,18 @@ def test_a_unit_error_is_refused(scene, tmp_path, capsys):
         assert needle in err, (needle, err)
 
 
-def test_just_over_the_tolerated_share_is_refused(scene, tmp_path, capsys):
-    n_ok = int(OUTLIER_PIXEL_SHARE * H * W)            # 3 of 384 pass, 4 do not
+@pytest.mark.parametrize("value,share", [(50.0, GLINT_PIXEL_SHARE), (-2.0, BAD_PIXEL_SHARE)])
+def test_just_over_the_tolerated_share_is_refused(scene, tmp_path, capsys, value, share):
+    """Up to 5 % of a frame's pixels may lie above the range (glints), 1 % below it (bad pixels)."""
+    n_ok = int(share * H * W)                           # 19 / 3 of 384 pass, one more does not
     for n, want in ((n_ok, 0), (n_ok + 1, 2)):
         cube = np.full((H, W, B), 0.2, np.float32)
-        cube.reshape(-1, B)[:n, 0] = 50.0
+        cube.reshape(-1, B)[:n, 0] = value
         write_envi(scene / "images" / "view_04.hdr", cube, WL, np.full(B, 4.0))
         rc, out, err = inspect(scene, tmp_path, capsys)
         assert rc == want, err
+        if want:
+            assert f"{n} of 384 pixels" in err
 
 
 def test_values_below_the_range_are_masked(scene, tmp_path, capsys):

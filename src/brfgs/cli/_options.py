@@ -18,9 +18,9 @@ SceneArg = typer.Argument(..., help="Scene folder (transforms.json + images/, se
                           show_default=False)
 DownscaleOpt = typer.Option(1, "--downscale", min=1, help="Integer area-average factor applied while reading.")
 ValueRangeOpt = typer.Option("-0.5,10", "--value-range", metavar="LO,HI",
-                             help="Plausible reflectance range: a frame with more than 1 % of its pixels outside it is "
-                                  "refused (a unit error); fewer are glints (above: kept) or bad pixels (below: "
-                                  "masked).")
+                             help="Plausible reflectance range: a frame with more than 5 % of its pixels above it or "
+                                  "1 % below it is refused (a unit error); fewer are glints (above: kept) or bad "
+                                  "pixels (below: masked).")
 SplitSeedOpt = typer.Option(0, "--split-seed", help="Seed of the deterministic 6:1 train/test split.")
 AllowLinksOpt = typer.Option(False, "--allow-outside-links",
                              help="Read files that links in the scene folder lead to outside it (refused by default).")

@@ -173,8 +173,8 @@ class Scene:
         ``bands`` indexes the scene's (already subset) bands; default all. Downscale and
         ROI are applied while reading; a downscaled pixel containing a NaN/Inf input pixel is
         NaN. Values below ``value_range`` are masked (NaN) and values above it kept and counted
-        (``bright_counts``: specular glints), as long as they are at most 1 % of the frame's
-        pixels; more raises UserError (brfgs.data.validation.RangeTally).
+        (``bright_counts``: specular glints), as long as they are at most 5 % (above) and 1 %
+        (below) of the frame's pixels; more raises UserError (brfgs.data.validation.RangeTally).
         """
         src = self._sources[i]
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]

@@ -156,7 +156,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
     if bright:
         lines.append(f"above the range  {sum(bright.values())} pixel(s) in {len(bright)} frame(s): "
                      + ", ".join(f"{k}={v}" for k, v in list(bright.items())[:6])
-                     + " (kept: specular glints; at most 1 % of a frame's pixels)")
+                     + " (kept: specular glints; at most 5 % of a frame's pixels)")
     lines.append("")
     lines.append(f"{'band':>5} {'wavelength_nm':>14} {'mean_refl':>10} {'sigma':>10} {'snr':>9}")
     idx = np.unique(np.linspace(0, s.n_bands - 1, min(max_band_rows, s.n_bands)).round().astype(int))

@@ -169,10 +169,12 @@ def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transfor
                             field="wavelength")
 
 
-# A unit error (digital numbers, radiance, percent) moves most of a frame's values out of the
-# plausible range; a specular glint (water, glass, car paint: BRF 10-100 at a pixel) or a dead
-# pixel moves a few. More than this share of a frame's pixels outside the range is refused.
-OUTLIER_PIXEL_SHARE = 0.01
+# A unit error (digital numbers, radiance, percent, a missing scale factor) moves most of a frame's
+# pixels out of the plausible range. A specular glint (water, glass, car paint: BRF 10-100 at a
+# pixel) moves a few above it, a dead pixel one below it. A frame with more than these shares of
+# its pixels above / below the range is refused.
+GLINT_PIXEL_SHARE = 0.05
+BAD_PIXEL_SHARE = 0.01
 
 
 class RangeTally:
@@ -181,7 +183,8 @@ class RangeTally:
     ``add`` takes each block [h, w, b] as read (NaN/Inf allowed: they are masked elsewhere),
     masks the values below the range in place (no surface reflects less than nothing: such values
     are sensor artefacts) and counts the pixels with a value above it (kept: glints are data).
-    ``check`` refuses the frame when more than ``OUTLIER_PIXEL_SHARE`` of its pixels were outside.
+    ``check`` refuses the frame when more than ``GLINT_PIXEL_SHARE`` of its pixels were above the
+    range or more than ``BAD_PIXEL_SHARE`` below it.
     """
 
     def __init__(self, value_range: tuple[float, float]):
@@ -204,14 +207,16 @@ class RangeTally:
             self.high_max = max(self.high_max, float(block[high].max()))
 
     def check(self, cube_file: Path, frame: str) -> None:
-        """UserError when more than OUTLIER_PIXEL_SHARE of the frame's pixels were outside the range."""
-        n_out = self.n_low + self.n_high
-        if n_out <= OUTLIER_PIXEL_SHARE * max(self.n_pixels, 1):
+        """UserError when too many of the frame's pixels were outside the range (see the shares above)."""
+        n = max(self.n_pixels, 1)
+        if self.n_high <= GLINT_PIXEL_SHARE * n and self.n_low <= BAD_PIXEL_SHARE * n:
             return
+        n_out = self.n_low + self.n_high
         found = ", ".join(s for s in (f"min {self.low_min:.4g}" if self.n_low else "",
                                       f"max {self.high_max:.4g}" if self.n_high else "") if s)
         raise UserError(f"frame '{frame}': {n_out} of {self.n_pixels} pixels ({100 * n_out / self.n_pixels:.1f} %) "
                         f"have values outside the plausible reflectance range [{self.lo:g}, {self.hi:g}] "
-                        f"(found {found}; up to {100 * OUTLIER_PIXEL_SHARE:g} % are accepted as glints or "
-                        f"bad pixels); is the cube in reflectance units? Widen the range with --value-range "
-                        f"if these values are real", file=cube_file, field="reflectance")
+                        f"(found {found}; up to {100 * GLINT_PIXEL_SHARE:g} % above it are accepted as glints, "
+                        f"{100 * BAD_PIXEL_SHARE:g} % below it as bad pixels); is the cube in reflectance units? "
+                        f"Widen the range with --value-range if these values are real", file=cube_file,
+                        field="reflectance")

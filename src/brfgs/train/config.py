@@ -69,8 +69,8 @@ class TrainConfig:
     downscale: int = _opt(1, "Integer area-average factor applied when reading cubes.")
     allow_outside_links: bool = _opt(False, "Read files that links in the scene folder lead to outside it (refused "
                                      "by default).", "--allow-outside-links/--confine-to-scene")
-    value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes: more than 1 % "
-                                                    "of a frame's pixels outside it is refused.")
+    value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes: a frame with "
+                                                    "more than 5 % of its pixels above it or 1 % below is refused.")
     latent_dim: int = _opt(16, "Latent size d of the spectral autoencoder (<= 32).")
     ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
