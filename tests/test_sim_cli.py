@@ -175,6 +175,10 @@ def test_cli_is_deterministic_and_resumes(tmp_path, monkeypatch):
     (["--spp", "3", "--sampler", "independent"], "spp"),
     (["--sampler", "halton"], "sampler"),
     (["--views", "10"], "views"),
+    (["--rings", "15,15"], "rings"),
+    (["--rings", "80"], "rings"),
+    (["--rings", "30", "--azimuths", "0"], "azimuths"),
+    (["--rings", "30,x"], "--rings"),
 ])
 def test_cli_bad_options_exit_2(tmp_path, capsys, opts, field):
     rc = main(["simulate", str(tmp_path / "x"), "--size", "16", "--bands", "3", "--views", "13", *opts])
@@ -226,3 +230,22 @@ def test_never_overwrites_without_flag(tmp_path, capsys):
     assert set(after) == set(before)
     assert after["images/v00_z00_a000.img"] != before["images/v00_z00_a000.img"]  # another seed, other data
     assert json.loads((sim / "truth" / "scene.json").read_text())["config"]["seed"] == 1
+
+
+def test_another_view_layout(tmp_path):
+    """--rings / --azimuths: nadir + 5 azimuths on 10° and 65° rings, read back with those rings."""
+    from brfgs.data.scene import read_scene
+
+    out = tmp_path / "rings"
+    assert main(["simulate", str(out), "--size", "16", "--bands", "3", "--spp", "4", "--dark-frames", "2",
+                 "--rings", "65,10", "--azimuths", "5", "--quiet"]) == 0
+    meta = json.loads((out / "transforms.json").read_text())
+    got = [(f["view_zenith_deg"], f["view_azimuth_deg"]) for f in meta["frames"]]
+    want = [(0.0, 0.0)] + [(z, a) for z in (10.0, 65.0) for a in (0.0, 72.0, 144.0, 216.0, 288.0)]
+    assert got == want
+    cfg = SimConfig.from_json(json.loads((out / "truth" / "scene.json").read_text())["config"])
+    assert cfg.rings_deg == (65.0, 10.0) and cfg.n_views() == 11 and cfg.view_angles() == want
+    sc = read_scene(out)
+    rings = sc.rings()
+    assert sorted(set(rings.values()), key=float) == ["0", "10", "65"]
+    assert {rings[sc.frames[i].name] for i in sc.test_indices} >= {"10", "65"}   # held out from every ring

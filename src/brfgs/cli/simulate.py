@@ -16,7 +16,11 @@ def register(app: typer.Typer) -> None:
         scene: str = typer.Option("testsite", "--scene", help="Scene: testsite, forest or flat."),
         size: int = typer.Option(128, "--size", help="Image width = height in pixels (>= 8)."),
         bands: int = typer.Option(164, "--bands", help="Number of bands over 350-1000 nm."),
-        views: int = typer.Option(49, "--views", help="Number of views: 1, 13, 25, 37 or 49."),
+        views: int = typer.Option(49, "--views", help="Number of views: 1, 13, 25, 37 or 49 (the paper's layout)."),
+        rings: str = typer.Option(None, "--rings", metavar="Z1,Z2,...",
+                                  help="Another view layout: nadir + --azimuths views on each of these view-zenith "
+                                  "rings (degrees, e.g. 15,30,45,65), instead of --views."),
+        azimuths: int = typer.Option(12, "--azimuths", help="Views per ring of --rings, evenly spaced from 0 deg."),
         spp: int = typer.Option(64, "--spp", help="Samples per pixel: a power of 4 (1, 4, 16, 64, 256) for "
                                 "the default ldsampler, a power of two for independent."),
         sampler: str = typer.Option("ldsampler", "--sampler",
@@ -52,7 +56,7 @@ def register(app: typer.Typer) -> None:
         resume: bool = typer.Option(False, "--resume", help="Continue an interrupted simulation in OUT."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
-        """Render an AIR-BRF-like acquisition (nadir + 12 azimuths x 18/23/38/58 deg) with ground truth."""
+        """Render an AIR-BRF-like acquisition (nadir + 12 azimuths x 18/23/38/58 deg, or --rings) with ground truth."""
         from brfgs.analysis.options import parse_floats
         from brfgs.sim import SimConfig, simulate
 
@@ -62,7 +66,8 @@ def register(app: typer.Typer) -> None:
                         sampler=sampler, start_time=start_time, duration_min=duration,
                         irradiance_drift=irradiance_drift,
                         distortion=None if distortion is None else tuple(parse_floats(distortion, "--distortion", 4)),
-                        origin=None if origin is None else tuple(parse_floats(origin, "--origin")))
+                        origin=None if origin is None else tuple(parse_floats(origin, "--origin")),
+                        rings_deg=None if rings is None else tuple(parse_floats(rings, "--rings")), n_azimuths=azimuths)
         if layout not in ("native", "colmap"):
             from brfgs.errors import UserError
             raise UserError(f"expected native or colmap, got {layout!r}", field="--layout")
@@ -72,7 +77,7 @@ def register(app: typer.Typer) -> None:
             path = _simulate_colmap(out, cfg, overwrite, resume, quiet)
         t = getattr(simulate, "last_timing", {"setup_s": 0.0, "view_s": [], "total_s": 0.0})
         per_view = sorted(t["view_s"])[len(t["view_s"]) // 2] if t["view_s"] else float("nan")
-        typer.echo(f"wrote {path} ({cfg.views} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp} {cfg.sampler}); "
+        typer.echo(f"wrote {path} ({cfg.n_views()} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp} {cfg.sampler}); "
                    f"setup {t['setup_s']:.1f} s, median {per_view:.2f} s per view, total {t['total_s']:.1f} s")
 
 

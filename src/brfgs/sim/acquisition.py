@@ -6,7 +6,8 @@ two colour-infrared previews. See :class:`SimConfig` for the options and
 :func:`simulate` / :func:`render_views` for the library entry points.
 
 Acquisition (paper §4.1.2): views from :func:`brfgs.data.cameras.paper_view_angles`
-(nadir + 12 azimuths × 18/23/38/58°; 13/25/37 views for small presets), 35° field of view,
+(nadir + 12 azimuths × 18/23/38/58°; 13/25/37 views for small presets) or another layout of
+rings (``SimConfig.rings_deg``, ``n_azimuths``), 35° field of view,
 cameras at ``distance_m`` from the scene centre looking at it; bands evenly spaced over
 350–1000 nm with 4 nm FWHM (164 bands by default).
 
@@ -33,7 +34,7 @@ from tqdm import tqdm
 
 from brfgs.data import atomic
 from brfgs.data.angles import direction_from_angles_deg
-from brfgs.data.cameras import paper_view_angles, pose_from_view_angles
+from brfgs.data.cameras import pose_from_view_angles
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
 from brfgs.sim.config import N_DARK_DEFAULT, SAMPLERS, VALID_VIEWS, SimConfig  # noqa: F401  (re-exported)
@@ -226,7 +227,7 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
     fwhm = cfg.fwhm_array_nm()
     sigma = cfg.sigma_b()
     intr = cfg.intrinsics()
-    angles = paper_view_angles(int(cfg.views))
+    angles = cfg.view_angles()
     sun_z, sun_a = cfg.view_suns()                       # the sun may move over the flight
     times = cfg.view_times()
     scales = cfg.irradiance_scales()                     # downwelling irradiance drift

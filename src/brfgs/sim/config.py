@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import pandas as pd
 
-from brfgs.data.cameras import Intrinsics
+from brfgs.data.cameras import Intrinsics, paper_view_angles
 from brfgs.data.georef import Origin
 from brfgs.data.sun import solar_position
 from brfgs.errors import UserError
@@ -35,7 +35,9 @@ class SimConfig:
     distance_m: camera distance from the scene centre; fov_deg: horizontal field of view;
     fwhm_nm: band width; noise_scale: multiplies σ_b (0 = noise-free observations);
     shot_coeff: signal-dependent noise k (σ² = k²·ρ); n_dark: dark frames;
-    max_depth: longest light path; texture_px: resolution of the ground textures (0 = from size).
+    max_depth: longest light path; texture_px: resolution of the ground textures (0 = from size);
+    rings_deg, n_azimuths: another view layout, nadir + ``n_azimuths`` azimuths (from 0°, evenly
+    spaced) on each ring of ``rings_deg`` (view zeniths in degrees), instead of the paper's ``views``.
     """
 
     scene: str = "testsite"
@@ -62,6 +64,8 @@ class SimConfig:
     duration_min: float = 0.0                 # minutes from the first to the last view (views evenly spaced)
     irradiance_drift: float = 0.0             # per-view downwelling irradiance factor in [1 - d, 1 + d]
     distortion: tuple[float, ...] | None = None   # OPENCV k1, k2, p1, p2 of the camera (brfgs.sim.distort)
+    rings_deg: tuple[float, ...] | None = None    # view zenith rings of another layout (replaces ``views``)
+    n_azimuths: int = 12                          # views per ring of that layout, evenly spaced from 0°
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power
@@ -93,6 +97,12 @@ class SimConfig:
         req(int(self.size) >= 8, f"size must be at least 8 pixels, got {self.size}", "size")
         req(int(self.bands) >= 1, f"bands must be at least 1, got {self.bands}", "bands")
         req(int(self.views) in VALID_VIEWS, f"views must be one of {VALID_VIEWS}, got {self.views}", "views")
+        if self.rings_deg is not None:
+            r = [float(v) for v in self.rings_deg]
+            req(len(r) >= 1 and all(math.isfinite(v) and 0.0 < v <= 75.0 for v in r) and len(set(r)) == len(r),
+                f"rings must be distinct view zeniths in (0, 75] degrees, got {r}", "rings_deg")
+            req(1 <= int(self.n_azimuths) <= 72, f"azimuths per ring must be 1-72, got {self.n_azimuths}",
+                "n_azimuths")
         spp = int(self.spp)
         req(self.sampler in SAMPLERS, f"sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}",
             "sampler")
@@ -129,6 +139,18 @@ class SimConfig:
             req(len(d) == 4 and all(math.isfinite(float(v)) and abs(float(v)) < 1.0 for v in d),
                 f"distortion must be k1,k2,p1,p2 with |value| < 1, got {d}", "distortion")
 
+    def view_angles(self) -> list[tuple[float, float]]:
+        """(view_zenith_deg, view_azimuth_deg) of every view, nadir first, ring by ring (ascending)."""
+        if self.rings_deg is None:
+            return paper_view_angles(int(self.views))
+        step = 360.0 / int(self.n_azimuths)
+        return [(0.0, 0.0)] + [(float(z), k * step) for z in sorted(float(v) for v in self.rings_deg)
+                               for k in range(int(self.n_azimuths))]
+
+    def n_views(self) -> int:
+        """Number of views of the layout (``views``, or nadir + rings × azimuths)."""
+        return len(self.view_angles())
+
     def view_times(self) -> list[str] | None:
         """UTC ISO time of every view (acquisition order), or None without a start time."""
         if self.start_time is None:
@@ -136,14 +158,14 @@ class SimConfig:
         t0 = pd.Timestamp(self.start_time)
         if t0.tzinfo is None:
             raise UserError(f"start time needs a UTC offset (e.g. 'Z'), got {self.start_time!r}", field="start_time")
-        n = int(self.views)
+        n = self.n_views()
         step = pd.Timedelta(minutes=float(self.duration_min) / max(n - 1, 1))
         return [(t0 + k * step).tz_convert("UTC").isoformat() for k in range(n)]
 
     def irradiance_scales(self) -> np.ndarray:
         """Per-view factor [V] of the downwelling irradiance (a smooth drift of amplitude
         ``irradiance_drift`` over the flight, phase from the seed): 1 everywhere without drift."""
-        n = int(self.views)
+        n = self.n_views()
         if self.irradiance_drift <= 0:
             return np.ones(n)
         phase = np.random.default_rng([int(self.seed), 11]).uniform(0, 2 * np.pi)
@@ -155,7 +177,7 @@ class SimConfig:
         (pvlib's NREL SPA, brfgs.data.sun) or the fixed ``sun_zenith_deg``/``sun_azimuth_deg``."""
         times = self.view_times()
         if times is None:
-            n = int(self.views)
+            n = self.n_views()
             return np.full(n, float(self.sun_zenith_deg)), np.full(n, float(self.sun_azimuth_deg))
         o = self.origin_json()
         return solar_position(times, Origin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"]))
@@ -190,7 +212,7 @@ class SimConfig:
         names = {f.name for f in fields(cls)}
         kw = {k: v for k, v in d.items() if k in names}
         kw.setdefault("sampler", "independent")  # scenes written before the sampler option
-        for key in ("origin", "distortion"):
+        for key in ("origin", "distortion", "rings_deg"):
             if kw.get(key) is not None:
                 kw[key] = tuple(kw[key])
         return cls(**kw)
