@@ -3,13 +3,13 @@ integer-scaled reflectance (ENVI ``data ignore value`` / ``reflectance scale fac
 ``GDAL_NODATA``)."""
 
 import json
-import shutil
 
 import numpy as np
 import pytest
 import spectral.io.envi as envi
 import tifffile
 from scenes import make_scene, snapshot
+from test_data_validation import pristine, scene  # noqa: F401  (fixtures: a copy of one small scene per test)
 
 import brfgs.data.cube_io as cube_io
 from brfgs.cli import main
@@ -20,18 +20,6 @@ from brfgs.errors import UserError
 
 H, W, B = 16, 24, 6          # make_scene's cubes: 384 pixels (5 % of them: 19.2, 1 %: 3.84)
 WL = np.linspace(420.0, 880.0, B)
-
-
-@pytest.fixture(scope="module")
-def pristine(tmp_path_factory):
-    return make_scene(tmp_path_factory.mktemp("pristine") / "scene")
-
-
-@pytest.fixture
-def scene(pristine, tmp_path):
-    root = tmp_path / "scene"
-    shutil.copytree(pristine, root)
-    return root
 
 
 def inspect(root, tmp_path, capsys):
