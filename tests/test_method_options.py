@@ -12,7 +12,7 @@ import torch
 
 from brfgs.cli import main
 from brfgs.data import read_scene
-from brfgs.data.splits import apportion, stratified_pick, view_rings
+from brfgs.data.splits import apportion, nearest_view_angle_deg, stratified_pick, view_rings
 from brfgs.model import TrainedModel, render
 from brfgs.cli.train import build_config
 from brfgs.train.config import ADDITIONS, FINE, PAPER_METHOD, PRESETS, TrainConfig, preset
@@ -46,6 +46,25 @@ def test_test_views_come_from_every_ring(seed):
     assert test == stratified_pick(list(range(49)), rings, 7, seed)  # deterministic
 
 
+def test_nearest_view_angle_against_the_spherical_law_of_cosines():
+    """Angles to the nearest training view from (zenith, azimuth) pairs, against a float64 loop over the
+    spherical law of cosines (an independent formula: no direction vectors)."""
+    from brfgs.data.angles import direction_from_angles_deg
+
+    rng = np.random.default_rng(0)
+    held = np.column_stack([rng.uniform(0, 70, 9), rng.uniform(0, 360, 9)])
+    train = np.column_stack([rng.uniform(0, 70, 13), rng.uniform(0, 360, 13)])
+    dirs = lambda za: np.stack([direction_from_angles_deg(z, a) for z, a in za])  # noqa: E731
+    got = nearest_view_angle_deg(dirs(held), dirs(train))
+    want = []
+    for z1, a1 in np.radians(held):
+        c = [np.cos(z1) * np.cos(z2) + np.sin(z1) * np.sin(z2) * np.cos(a1 - a2) for z2, a2 in np.radians(train)]
+        want.append(np.degrees(np.arccos(min(1.0, max(c)))))
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert nearest_view_angle_deg(dirs(train[:1]), dirs(train))[0] < 1e-4      # a training view itself: 0°
+    assert np.isnan(nearest_view_angle_deg(dirs(held), np.zeros((0, 3)))).all()
+
+
 def test_scene_split_validation_and_rings(tmp_path):
     root = make_plane_scene(tmp_path / "s", w=16, h=12, n_bands=4, n_views=25)
     plain = read_scene(root)
@@ -56,6 +75,11 @@ def test_scene_split_validation_and_rings(tmp_path):
     assert len(val.validation_indices) == round(len(plain.train_indices) / 6)
     rec = val.split_record()
     assert set(rec["rings"]) == {"0", "18", "38"}  # 25 views: nadir + 12 at 18° + 12 at 38°
+    near = rec["nearest_train_view_deg"]            # every held-out view, none of the training views
+    assert set(near) == set(rec["test"]) | set(rec["validation"])
+    # at best the 18° neighbour 30° of azimuth away (2 asin(sin 18° sin 15°) = 9.2°), at worst the view on the
+    # next ring at the same azimuth (20°) when both ring neighbours are held out too
+    assert all(9.1 <= a <= 20.1 for a in near.values()) and min(near.values()) < 9.3
     for ring in ("18", "38"):  # 4 test views in all: two per ring
         assert len(rec["rings"][ring]["test"]) == 2
     assert "validation" not in plain.split_record()

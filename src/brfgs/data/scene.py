@@ -28,7 +28,7 @@ from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
-from brfgs.data.splits import ring_name, stratified_pick, view_rings
+from brfgs.data.splits import nearest_view_angle_deg, ring_name, stratified_pick, view_rings
 from brfgs.errors import UserError
 
 TRANSFORMS = "transforms.json"
@@ -148,10 +148,21 @@ class Scene:
                "test": [self.frames[i].name for i in self.test_indices]}
         if self.validation:
             rec["validation"] = [self.frames[i].name for i in self.validation_indices]
+        rec["nearest_train_view_deg"] = self.nearest_train_view_deg()
         rings = self.rings()
         rec["rings"] = {r: {s: [n for n in rec.get(s, []) if rings[n] == r] for s in ("train", "validation", "test")
                             if s in rec} for r in sorted(set(rings.values()), key=float)}
         return rec
+
+    def nearest_train_view_deg(self) -> dict[str, float]:
+        """{held-out frame name: angle (deg, 0.1) from its view direction to the nearest training view's}
+        for the test and validation views (brfgs.data.splits.nearest_view_angle_deg)."""
+        def dirs(idx):
+            return np.stack([direction_from_angles_deg(self.frames[i].view_zenith_deg, self.frames[i].view_azimuth_deg)
+                             for i in idx]) if idx else np.zeros((0, 3))
+        held = self.test_indices + self.validation_indices
+        ang = nearest_view_angle_deg(dirs(held), dirs(self.train_indices))
+        return {self.frames[i].name: round(float(a), 1) for i, a in zip(held, ang)}
 
     @property
     def truth_dir(self) -> Path | None:

@@ -73,3 +73,19 @@ def stratified_pick(candidates: list[int], rings: np.ndarray, n_pick: int, seed:
             perm = rng.permutation(len(g))
             out += [g[j] for j in perm[:c]]
     return sorted(out)
+
+
+def nearest_view_angle_deg(held_dirs: np.ndarray, train_dirs: np.ndarray) -> np.ndarray:
+    """Angle (degrees) from each held-out view direction [M, 3] to the nearest training view
+    direction [N, 3] (unit vectors, scene to camera) -> [M].
+
+    How far a held-out view is from what training saw: a model interpolates near-nadir views 5-9°
+    from a training view and extrapolates oblique views 25-31° from one (docs/results.md, Sessions
+    16 and 29), so a split's metrics depend on it.
+    """
+    held = np.asarray(held_dirs, dtype=np.float64).reshape(-1, 3)
+    train = np.asarray(train_dirs, dtype=np.float64).reshape(-1, 3)
+    if len(held) == 0 or len(train) == 0:
+        return np.full(len(held), np.nan)
+    cos = np.clip(held @ train.T, -1.0, 1.0)                       # [M, N]
+    return np.degrees(np.arccos(cos.max(axis=1)))

@@ -43,6 +43,7 @@ class SceneSummary:
     invalid_pixels: dict[str, int] = field(default_factory=dict)
     bright_pixels: dict[str, int] = field(default_factory=dict)  # pixels above the plausible range (kept)
     rings: dict[str, list[int]] = field(default_factory=dict)  # view ring -> [n train, n test]
+    nearest_train_view_deg: dict[str, float] = field(default_factory=dict)  # held-out view -> angle to training
     flight: dict = field(default_factory=dict)  # per-frame suns, times, irradiance scales, cameras, georeference
 
     def to_json(self) -> dict:
@@ -82,7 +83,17 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
-        invalid_pixels=dict(scene.invalid_counts), bright_pixels=dict(scene.bright_counts), rings=_ring_counts(scene), flight=_flight(scene))
+        invalid_pixels=dict(scene.invalid_counts), bright_pixels=dict(scene.bright_counts), rings=_ring_counts(scene),
+        nearest_train_view_deg=scene.nearest_train_view_deg(), flight=_flight(scene))
+
+
+def _held_out_line(nearest_deg: dict[str, float]) -> str:
+    """Console line: how far the held-out views are from the nearest training view."""
+    if not nearest_deg:
+        return "held-out views   none"
+    a = np.array(list(nearest_deg.values()))
+    return (f"held-out views   {a.min():.1f}-{a.max():.1f} deg from the nearest training view (median "
+            f"{np.median(a):.1f}; farther means extrapolation: expect lower scores there)")
 
 
 def _flight(scene: Scene) -> dict:
@@ -137,6 +148,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
         f"scene            {s.name}",
         f"frames           {s.n_frames} ({s.n_train} train / {s.n_test} test)",
         "view rings       " + ", ".join(f"{r} deg: {a}/{b}" for r, (a, b) in s.rings.items()) + " (train/test)",
+        _held_out_line(s.nearest_train_view_deg),
         f"bands            {s.n_bands}, {s.wavelength_range_nm[0]:.1f}-{s.wavelength_range_nm[1]:.1f} nm",
         f"image size       {s.width} x {s.height} px",
         f"sun              zenith {s.sun_zenith_deg:.1f} deg, azimuth {s.sun_azimuth_deg:.1f} deg",
