@@ -157,11 +157,9 @@ class Scene:
     def nearest_train_view_deg(self) -> dict[str, float]:
         """{held-out frame name: angle (deg, 0.1) from its view direction to the nearest training view's}
         for the test and validation views (brfgs.data.splits.nearest_view_angle_deg)."""
-        def dirs(idx):
-            return np.stack([direction_from_angles_deg(self.frames[i].view_zenith_deg, self.frames[i].view_azimuth_deg)
-                             for i in idx]) if idx else np.zeros((0, 3))
+        d = np.stack([direction_from_angles_deg(f.view_zenith_deg, f.view_azimuth_deg) for f in self.frames])
         held = self.test_indices + self.validation_indices
-        ang = nearest_view_angle_deg(dirs(held), dirs(self.train_indices))
+        ang = nearest_view_angle_deg(d[held], d[self.train_indices])
         return {self.frames[i].name: round(float(a), 1) for i, a in zip(held, ang)}
 
     @property
