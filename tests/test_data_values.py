@@ -85,6 +85,16 @@ def test_values_below_the_range_are_masked(scene, tmp_path, capsys):
     assert img[3, 4, 0] == np.float32(-0.4)
 
 
+def test_non_finite_pixels_are_masked_whatever_their_share(scene, tmp_path, capsys):
+    """NaN and ±Inf are masked and counted as before, not judged as outliers (20 % of the frame here)."""
+    cube = np.full((H, W, B), 0.2, np.float32)
+    cube[:2, :, 0], cube[2, :, 1], cube[3, :, 2] = np.nan, np.inf, -np.inf     # 4 rows of 16
+    write_envi(scene / "images" / "view_05.hdr", cube, WL, np.full(B, 4.0))
+    rc, out, err = inspect(scene, tmp_path, capsys)
+    assert rc == 0, err
+    assert f"NaN/Inf pixels   {4 * W} in 1 frame(s): view_05={4 * W}" in out and "above the range" not in out
+
+
 def test_the_share_is_per_frame_not_per_row_block(monkeypatch):
     """Blocks of one row: a frame whose outliers sit in one row is judged on all its pixels."""
     cube = np.full((H, W, B), 0.2, np.float32)

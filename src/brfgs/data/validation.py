@@ -180,7 +180,8 @@ BAD_PIXEL_SHARE = 0.01
 class RangeTally:
     """Pixels of one frame outside the plausible reflectance range, counted over its row blocks.
 
-    ``add`` takes each block [h, w, b] as read (NaN/Inf allowed: they are masked elsewhere),
+    ``add`` takes each block [h, w, b] as read (NaN/Inf allowed: they are masked elsewhere, whatever
+    their share),
     masks the values below the range in place (no surface reflects less than nothing: such values
     are sensor artefacts) and counts the pixels with a value above it (kept: glints are data).
     ``check`` refuses the frame when more than ``GLINT_PIXEL_SHARE`` of its pixels were above the
@@ -196,8 +197,9 @@ class RangeTally:
     def add(self, block: np.ndarray) -> None:
         """Count (and mask the low values of) one float block [h, w, b], in place."""
         self.n_pixels += block.shape[0] * block.shape[1]
+        finite = np.isfinite(block)                             # NaN and ±Inf are masked, not outliers
         with np.errstate(invalid="ignore"):
-            low, high = block < self.lo, block > self.hi       # NaN compares False
+            low, high = finite & (block < self.lo), finite & (block > self.hi)
         if low.any():
             self.n_low += int(low.any(-1).sum())
             self.low_min = min(self.low_min, float(block[low].min()))
