@@ -140,10 +140,11 @@ def paper_view_angles(n_views: int = 49) -> list[tuple[float, float]]:
     rings = [38.0, 18.0, 58.0, 23.0]
     if (n_views - 1) % 12 != 0 or not 1 <= n_views <= 49:
         raise ValueError("n_views must be 1 + 12k with k in 0..4 (1, 13, 25, 37, 49)")
-    k = (n_views - 1) // 12
-    chosen = sorted(rings[:k])
-    out = [(0.0, 0.0)]
-    for z in chosen:
-        for a in range(0, 360, 30):
-            out.append((z, float(a)))
-    return out
+    return ring_view_angles(rings[: (n_views - 1) // 12], 12)
+
+
+def ring_view_angles(rings_deg, n_azimuths: int) -> list[tuple[float, float]]:
+    """(view_zenith_deg, view_azimuth_deg) of nadir + ``n_azimuths`` azimuths (from 0°, evenly spaced)
+    on each ring of ``rings_deg``, ring by ring in ascending zenith."""
+    step = 360.0 / int(n_azimuths)
+    return [(0.0, 0.0)] + [(z, k * step) for z in sorted(float(v) for v in rings_deg) for k in range(int(n_azimuths))]

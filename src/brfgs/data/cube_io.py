@@ -229,18 +229,16 @@ def _raw_array(src: CubeSource):
     return np.moveaxis(arr, 0, -1) if src.band_axis_first else arr
 
 
-def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: int,
-                         value_range: tuple[float, float], frame: str,
-                         tally: RangeTally | None = None) -> np.ndarray:
+def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: int, tally: RangeTally,
+                         frame: str) -> np.ndarray:
     """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
 
     Stored no-data values become NaN and stored values are divided by the source's scale. Values
-    outside ``value_range`` are counted in ``tally`` (brfgs.data.validation.RangeTally: those
+    outside the plausible range are counted in ``tally`` (brfgs.data.validation.RangeTally: those
     below it masked, a frame with too many refused). The memory map is reopened for each block and
     dropped after it, so the pages it touched leave the process's resident set: peak memory is one
     block, not the cube.
     """
-    tally = RangeTally(value_range) if tally is None else tally
     x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
     out_h, out_w = rh // factor, rw // factor
     nb = len(file_bands)
@@ -255,9 +253,8 @@ def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: in
             rows = slice(y0 + r0 * factor, y0 + r1 * factor)
             cols = slice(x0, x0 + out_w * factor)
             block = raw[rows, cols] if contiguous else raw[rows, cols][:, :, file_bands]
-            block = _as_reflectance(block, src)
+            block = tally.add(_as_reflectance(block, src))
             del raw
-            tally.add(block)
             if factor > 1:
                 block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
             out[r0:r1] = block
@@ -270,13 +267,15 @@ def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: in
 
 
 def _as_reflectance(block: np.ndarray, src: CubeSource) -> np.ndarray:
-    """Stored values [h, w, b] as a new float32 reflectance array: no-data values NaN, divided by the scale."""
-    out = np.array(block, dtype=np.float32)   # a copy: the memory map is read-only
+    """Stored values [h, w, b] as float32 reflectance: no-data values NaN, divided by the scale (a view
+    of a float32 block that needs neither, else a new array)."""
+    out = np.asarray(block, dtype=np.float32)
     if src.nodata is not None and not np.isnan(src.nodata):
         stored = np.asarray(block)
         # compare in the stored type: a float32 no-data written as text rounds back to itself
-        marker = stored.dtype.type(src.nodata) if stored.dtype.kind == "f" else src.nodata
-        out[stored == marker] = np.nan
+        nodata = stored == (stored.dtype.type(src.nodata) if stored.dtype.kind == "f" else src.nodata)
+        if nodata.any():
+            out = np.where(nodata, np.float32(np.nan), out)
     if src.scale != 1.0:
         out = out / np.float32(src.scale)
     return out

@@ -223,9 +223,8 @@ class Scene:
         with its own camera is read whole and resampled first (brfgs.data.undistort)."""
         cam = self.frames[i].camera
         if cam is None or (src.lines, src.samples) != (cam.intrinsics.h, cam.intrinsics.w):
-            return read_block_averaged(src, file_bands, self.roi, self.downscale, tally.value_range,
-                                       self.frames[i].name, tally)
-        full = read_block_averaged(src, file_bands, None, 1, tally.value_range, self.frames[i].name, tally)
+            return read_block_averaged(src, file_bands, self.roi, self.downscale, tally, self.frames[i].name)
+        full = read_block_averaged(src, file_bands, None, 1, tally, self.frames[i].name)
         full = resample_cube(full, cam, self.full_intrinsics)
         x0, y0, rw, rh = self.roi if self.roi is not None else (0, 0, full.shape[1], full.shape[0])
         f = self.downscale
@@ -468,7 +467,7 @@ def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[
         n = 0
         for p in paths:
             src = open_cube(p, wl, tf, f"dark frame {p.name}", allow)
-            cube = read_block_averaged(src, np.arange(n_bands), None, 1, value_range, p.name)
+            cube = read_block_averaged(src, np.arange(n_bands), None, 1, RangeTally(value_range), p.name)
             cube = cube.reshape(-1, n_bands).astype(np.float64)
             cube = cube[np.isfinite(cube).all(1)]
             s1 += cube.sum(0)
@@ -490,7 +489,7 @@ def _estimate_sigma(sources: list[CubeSource], n_bands: int, value_range) -> np.
     """Per-band noise σ from images (no dark frames): robust MAD of a 3×3 Laplacian residual (Immerkær 1996)."""
     ests = []
     for src in sources:
-        cube = read_block_averaged(src, np.arange(n_bands), None, 1, value_range, src.path.stem)
+        cube = read_block_averaged(src, np.arange(n_bands), None, 1, RangeTally(value_range), src.path.stem)
         lap = (4 * cube[1:-1, 1:-1] - cube[:-2, 1:-1] - cube[2:, 1:-1] - cube[1:-1, :-2] - cube[1:-1, 2:])
         lap = lap.reshape(-1, n_bands)
         lap = lap[np.isfinite(lap).all(1)]

@@ -181,32 +181,32 @@ class RangeTally:
     """Pixels of one frame outside the plausible reflectance range, counted over its row blocks.
 
     ``add`` takes each block [h, w, b] as read (NaN/Inf allowed: they are masked elsewhere, whatever
-    their share),
-    masks the values below the range in place (no surface reflects less than nothing: such values
-    are sensor artefacts) and counts the pixels with a value above it (kept: glints are data).
+    their share), masks the values below the range (no surface reflects less than nothing: such
+    values are sensor artefacts) and counts the pixels with a value above it (kept: glints are data).
     ``check`` refuses the frame when more than ``GLINT_PIXEL_SHARE`` of its pixels were above the
     range or more than ``BAD_PIXEL_SHARE`` below it.
     """
 
     def __init__(self, value_range: tuple[float, float]):
-        self.value_range = value_range
         self.lo, self.hi = value_range
         self.n_pixels = self.n_low = self.n_high = 0
         self.low_min, self.high_max = np.inf, -np.inf
 
-    def add(self, block: np.ndarray) -> None:
-        """Count (and mask the low values of) one float block [h, w, b], in place."""
+    def add(self, block: np.ndarray) -> np.ndarray:
+        """Count one float block [h, w, b]; returns it with the values below the range NaN (a new array
+        only when there are any: a read-only memory map passes through)."""
         self.n_pixels += block.shape[0] * block.shape[1]
         finite = np.isfinite(block)                             # NaN and ±Inf are masked, not outliers
         with np.errstate(invalid="ignore"):
             low, high = finite & (block < self.lo), finite & (block > self.hi)
-        if low.any():
-            self.n_low += int(low.any(-1).sum())
-            self.low_min = min(self.low_min, float(block[low].min()))
-            block[low] = np.nan
         if high.any():
             self.n_high += int(high.any(-1).sum())
             self.high_max = max(self.high_max, float(block[high].max()))
+        if not low.any():
+            return block
+        self.n_low += int(low.any(-1).sum())
+        self.low_min = min(self.low_min, float(block[low].min()))
+        return np.where(low, np.float32(np.nan), block)
 
     def check(self, cube_file: Path, frame: str) -> None:
         """UserError when too many of the frame's pixels were outside the range (see the shares above)."""

@@ -30,6 +30,7 @@ import tifffile
 
 from brfgs.data.cameras import GL_TO_CV
 from brfgs.data.cube_io import read_block_averaged
+from brfgs.data.validation import RangeTally
 from brfgs.data.scene import read_scene
 from brfgs.data.undistort import FrameCamera, read_frame_camera
 from brfgs.errors import UserError
@@ -91,7 +92,7 @@ def _write_cubes(sc, project: Path) -> np.ndarray:
     first = None
     for i, f in enumerate(sc.frames):
         src = sc._sources[i]                                                     # as stored: no scale, no resampling
-        cube = np.asarray(read_block_averaged(src, sc.band_indices, None, 1, (-np.inf, np.inf), f.name))
+        cube = np.asarray(read_block_averaged(src, sc.band_indices, None, 1, RangeTally((-np.inf, np.inf)), f.name))
         tifffile.imwrite(project / "images" / f"{f.name}.tif", np.moveaxis(cube, -1, 0), photometric="minisblack",
                          planarconfig="separate", compression="lzw")
         first = cube if first is None else first

@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import pandas as pd
 
-from brfgs.data.cameras import Intrinsics, paper_view_angles
+from brfgs.data.cameras import Intrinsics, paper_view_angles, ring_view_angles
 from brfgs.data.georef import Origin
 from brfgs.data.sun import solar_position
 from brfgs.errors import UserError
@@ -143,9 +143,7 @@ class SimConfig:
         """(view_zenith_deg, view_azimuth_deg) of every view, nadir first, ring by ring (ascending)."""
         if self.rings_deg is None:
             return paper_view_angles(int(self.views))
-        step = 360.0 / int(self.n_azimuths)
-        return [(0.0, 0.0)] + [(float(z), k * step) for z in sorted(float(v) for v in self.rings_deg)
-                               for k in range(int(self.n_azimuths))]
+        return ring_view_angles(self.rings_deg, self.n_azimuths)
 
     def n_views(self) -> int:
         """Number of views of the layout (``views``, or nadir + rings × azimuths)."""
