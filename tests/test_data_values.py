@@ -157,21 +157,37 @@ def test_without_a_scale_factor_integer_counts_are_a_unit_error(scene, tmp_path,
     assert rc == 2 and "384 of 384 pixels (100.0 %)" in err
 
 
-def test_geotiff_gdal_nodata(tmp_path):
-    """A float GeoTIFF whose GDAL_NODATA is float32's lowest value, written as text (as GDAL does)."""
+def _geotiff_scene(tmp_path, nodata_text: str, fill: float):
+    """make_scene's scene with view_02 a float GeoTIFF carrying GDAL_NODATA ``nodata_text`` (as GDAL
+    writes it) and a 2 x 4 patch of ``fill``; returns (root, patch slice)."""
     root = make_scene(tmp_path / "s", fmt="npy")
     meta = json.loads((root / "transforms.json").read_text())
     fr = meta["frames"][2]
     cube = np.load(root / fr["file_path"])
-    low = np.finfo(np.float32).min
-    cube[4:6, 5:9] = low
+    patch = (slice(4, 6), slice(5, 9))
+    cube[patch] = fill
     tif = fr["file_path"].replace(".npy", ".tif")
     tifffile.imwrite(root / tif, np.moveaxis(cube, -1, 0), photometric="minisblack", planarconfig="separate",
-                     extratags=[(cube_io.GDAL_NODATA_TAG, "s", 0, repr(float(low)), True)])
+                     extratags=[(cube_io.GDAL_NODATA_TAG, "s", 0, nodata_text, True)])
     fr["file_path"] = tif
     (root / "transforms.json").write_text(json.dumps(meta))
+    return root, patch
+
+
+def test_geotiff_gdal_nodata(tmp_path):
+    """A float GeoTIFF whose GDAL_NODATA is float32's lowest value, written as text (as GDAL does)."""
+    low = np.finfo(np.float32).min
+    root, patch = _geotiff_scene(tmp_path, repr(float(low)), low)
     img = read_scene(root).load_image(2)
-    assert np.isnan(img[4:6, 5:9]).all() and np.isfinite(img).sum() == (H * W - 8) * B
+    assert np.isnan(img[patch]).all() and np.isfinite(img).sum() == (H * W - 8) * B
+
+
+def test_geotiff_bad_gdal_nodata_is_refused(tmp_path, capsys):
+    root, _ = _geotiff_scene(tmp_path, "none", 0.2)
+    rc, out, err = inspect(root, tmp_path, capsys)
+    assert rc == 2
+    for n in ("view_02.tif", "GDAL_NODATA", "a number or nan", "'none'"):
+        assert n in err, (n, err)
 
 
 def test_range_tally_refusal_names_file_and_field(tmp_path):
