@@ -12,7 +12,8 @@ import torch
 
 from brfgs.cli import main
 from brfgs.data import read_scene
-from brfgs.data.splits import apportion, nearest_view_angle_deg, stratified_pick, view_rings
+from brfgs.errors import UserError
+from brfgs.data.splits import apportion, assign_split, nearest_view_angle_deg, spread_pick, stratified_pick, view_rings
 from brfgs.model import TrainedModel, render
 from brfgs.cli.train import build_config
 from brfgs.train.config import ADDITIONS, FINE, PAPER_METHOD, PRESETS, TrainConfig, preset
@@ -44,6 +45,75 @@ def test_test_views_come_from_every_ring(seed):
     for ring in (18.0, 23.0, 38.0, 58.0):
         assert 1 <= sum(rings[i] == ring for i in test) <= 2
     assert test == stratified_pick(list(range(49)), rings, 7, seed)  # deterministic
+
+
+AIR_BRF_AZIMUTHS = [0.0] + [30.0 * k for k in range(12)] * 4
+
+
+def _dirs(zen, azi):
+    from brfgs.data.angles import direction_from_angles_deg
+
+    return np.stack([direction_from_angles_deg(z, a) for z, a in zip(zen, azi)])
+
+
+def _min_pair_angle_deg(dirs, idx):
+    """Smallest angle (deg) between two of the views ``idx``: a float64 loop over pairs."""
+    return min(np.degrees(np.arccos(np.clip(dirs[i] @ dirs[j], -1, 1))) for i in idx for j in idx if i < j)
+
+
+def test_spread_pick_takes_the_farthest_view():
+    """One ring of 6 views 60° apart at zenith 40°: with view 0 held out, the farthest view is the opposite one
+    (azimuth 180°), whatever the seed; a second pick is any of the four left, each 60° from a held-out view."""
+    zen, azi = [40.0] * 6, [60.0 * k for k in range(6)]
+    rings, dirs = view_rings(zen), _dirs(zen, azi)
+    for seed in range(4):
+        assert spread_pick([1, 2, 3, 4, 5], rings, dirs, 1, seed, held=[0]) == [3]
+        two = spread_pick([1, 2, 3, 4, 5], rings, dirs, 2, seed, held=[0])
+        assert 3 in two and (set(two) - {3}) <= {1, 2, 4, 5}   # after 3, every other view is 60° from a held one
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_spread_split_holds_out_no_neighbours(seed):
+    """On the AIR-BRF layout (nadir + 4 rings x 12 azimuths) the spread rule's test views come from every ring,
+    and no two held-out views (test and validation) are neighbours: the smallest angle between two of them is
+    larger than the layout's smallest spacing (18° -> 23° at one azimuth: 5°; 18° ring neighbours: 9.2°)."""
+    rings, dirs = view_rings(AIR_BRF_ZENITHS), _dirs(AIR_BRF_ZENITHS, AIR_BRF_AZIMUTHS)
+    test = spread_pick(list(range(49)), rings, dirs, 7, seed)
+    assert test == spread_pick(list(range(49)), rings, dirs, 7, seed)                    # deterministic
+    for ring in (18.0, 23.0, 38.0, 58.0):
+        assert 1 <= sum(rings[i] == ring for i in test) <= 2
+    assert _min_pair_angle_deg(dirs, test) > 15.0
+    train = [i for i in range(49) if i not in test]
+    val = spread_pick(train, rings, dirs, 7, seed + 1, held=test)
+    assert not set(val) & set(test) and _min_pair_angle_deg(dirs, test + val) > 9.3
+    # the random rule holds out neighbours on some seeds: what the spread rule is for
+    rnd = [stratified_pick(list(range(49)), rings, 7, s) for s in range(20)]
+    assert min(_min_pair_angle_deg(dirs, t) for t in rnd) < 9.3
+
+
+def test_split_rules_and_old_runs(tmp_path):
+    """``random`` is the rule before Session 30, exactly; a run folder written before the option existed
+    reads back with it, so its test views stay its test views."""
+    class F:
+        def __init__(self, z, a):
+            self.view_zenith_deg, self.view_azimuth_deg, self.split, self.split_given = z, a, "", False
+
+    frames = [F(z, a) for z, a in zip(AIR_BRF_ZENITHS, AIR_BRF_AZIMUTHS)]
+    assign_split(frames, 3, "random", validation=True)
+    rings = view_rings(AIR_BRF_ZENITHS)
+    test = stratified_pick(list(range(49)), rings, 7, 3)
+    assert [i for i, f in enumerate(frames) if f.split == "test"] == test
+    train = [i for i in range(49) if i not in test]
+    assert [i for i, f in enumerate(frames) if f.split == "validation"] == stratified_pick(train, rings, 7, 4)
+    old = tmp_path / "config.json"
+    written = json.loads(TrainConfig().to_json())
+    assert written["split_rule"] == "spread"
+    old.write_text(json.dumps({k: v for k, v in written.items() if k != "split_rule"}))
+    assert TrainConfig.from_run_config(old).split_rule == "random"
+    with pytest.raises(UserError, match="split_rule"):
+        TrainConfig(split_rule="nearest").validate()
+    with pytest.raises(UserError, match="split rule"):
+        read_scene(make_plane_scene(tmp_path / "s", w=8, h=6, n_bands=4, n_views=13), split_rule="nearest")
 
 
 def test_nearest_view_angle_against_the_spherical_law_of_cosines():

@@ -96,6 +96,7 @@ def open_model_scene(tm: TrainedModel, scene_path: Path | None, required: bool) 
     kw = {"roi": tm.scene["roi"]} if tm.scene.get("roi") is not None else {}
     split_seed = int(tm.config.get("split_seed", 0))
     return read_scene(root, downscale=int(tm.scene.get("downscale", 1) or 1), split_seed=split_seed,
+                      split_rule=str(tm.config.get("split_rule", "random")),
                       allow_outside_links=bool(tm.config.get("allow_outside_links", False)), **kw)
 
 

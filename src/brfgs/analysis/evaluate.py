@@ -39,6 +39,7 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "te
         raise UserError("the model was trained on every training view: there is no validation split "
                         "(train with --validation)", field="split")
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
+                       split_rule=cfg.get("split_rule", "random"),
                        value_range=tuple(cfg["value_range"]), validation=bool(cfg.get("validation", False)),
                        allow_outside_links=bool(cfg.get("allow_outside_links", False)))
     where = root / "transforms.json"

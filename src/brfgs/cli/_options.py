@@ -22,6 +22,8 @@ ValueRangeOpt = typer.Option("-0.5,10", "--value-range", metavar="LO,HI",
                                   "1 % below it is refused (a unit error); fewer are glints (above: kept) or bad "
                                   "pixels (below: masked).")
 SplitSeedOpt = typer.Option(0, "--split-seed", help="Seed of the deterministic 6:1 train/test split.")
+SplitRuleOpt = typer.Option("spread", "--split-rule", help="Which views of each ring are held out: spread "
+                            "(farthest-point over the view directions) or random.")
 AllowLinksOpt = typer.Option(False, "--allow-outside-links",
                              help="Read files that links in the scene folder lead to outside it (refused by default).")
 
@@ -43,9 +45,10 @@ def parse_value_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def load_scene(scene: Path, downscale: int = 1, value_range: str = "-0.5,10", split_seed: int = 0, **kw):
+def load_scene(scene: Path, downscale: int = 1, value_range: str = "-0.5,10", split_seed: int = 0,
+               split_rule: str = "spread", **kw):
     """read_scene with the shared CLI options."""
     from brfgs.data import read_scene
 
     return read_scene(scene, downscale=downscale, value_range=parse_value_range(value_range),
-                      split_seed=split_seed, **kw)
+                      split_seed=split_seed, split_rule=split_rule, **kw)

@@ -19,13 +19,15 @@ def inspect_cmd(
     value_range: str = opt.ValueRangeOpt,
     allow_outside_links: bool = opt.AllowLinksOpt,
     split_seed: int = opt.SplitSeedOpt,
+    split_rule: str = opt.SplitRuleOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Read and validate a scene; print frames, bands, split, angles, per-band noise/SNR and NaN counts."""
     from brfgs.data import atomic
     from brfgs.data.summary import format_summary, plot_views, summarize
 
-    sc = opt.load_scene(scene, downscale, value_range, split_seed, allow_outside_links=allow_outside_links)
+    sc = opt.load_scene(scene, downscale, value_range, split_seed, split_rule,
+                        allow_outside_links=allow_outside_links)
     out = out if out is not None else Path.cwd() / f"inspect_{sc.name}"
     opt.check_output_dir(out, sc.root, overwrite=True)
     summary = summarize(sc, progress=not quiet)

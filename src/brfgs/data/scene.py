@@ -28,13 +28,11 @@ from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
-from brfgs.data.splits import nearest_view_angle_deg, ring_name, stratified_pick, view_rings
+from brfgs.data.splits import SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
 from brfgs.errors import UserError
 
 TRANSFORMS = "transforms.json"
 DEFAULT_VALUE_RANGE = (-0.5, 10.0)
-TEST_EVERY = 7  # 6 train : 1 test
-VALIDATION_EVERY = 6  # of the training views, 1 in 6 for validation (when asked for)
 
 
 @dataclass
@@ -74,6 +72,7 @@ class Scene:
     roi: tuple[int, int, int, int] | None = None   # (x0, y0, w, h) in full-resolution pixels
     value_range: tuple[float, float] = DEFAULT_VALUE_RANGE
     split_seed: int = 0
+    split_rule: str = "spread"
     validation: bool = False                # 1 in 6 training views held out as the validation split
     full_intrinsics: Intrinsics | None = None
     _sources: list[CubeSource] = field(default_factory=list, repr=False)
@@ -140,9 +139,11 @@ class Scene:
 
     def split_record(self) -> dict:
         """The split as recorded in run folders (split.json) and metrics files."""
-        rec = {"seed": self.split_seed,
-               "rule": "6:1 train:test stratified by view ring (test views from every ring in proportion), "
-                       "per-frame 'split' honoured" + ("; validation: 1 in 6 training views, stratified, "
+        how = ("spread over the view directions (farthest-point)" if self.split_rule == "spread"
+               else "chosen at random within each ring")
+        rec = {"seed": self.split_seed, "split_rule": self.split_rule,
+               "rule": f"6:1 train:test stratified by view ring (test views from every ring in proportion, {how}), "
+                       "per-frame 'split' honoured" + ("; validation: 1 in 6 training views, the same way, "
                                                        "seed + 1" if self.validation else ""),
                "train": [self.frames[i].name for i in self.train_indices],
                "test": [self.frames[i].name for i in self.test_indices]}
@@ -241,7 +242,7 @@ class Scene:
 def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.ndarray | None = None,
                roi: tuple[int, int, int, int] | None = None,
                value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0,
-               allow_outside_links: bool = False, validation: bool = False) -> Scene:
+               split_rule: str = "spread", allow_outside_links: bool = False, validation: bool = False) -> Scene:
     """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
 
     Args:
@@ -250,6 +251,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         roi: (x0, y0, w, h) region of interest in full-resolution pixels.
         value_range: plausible reflectance range; finite values outside it are an error.
         split_seed: seed of the deterministic 6:1 train/test split (stratified by view ring).
+        split_rule: which views of a ring are held out: "spread" or "random" (brfgs.data.splits).
         validation: also hold out 1 in 6 training views as the "validation" split.
         allow_outside_links: read files that links (the cubes, dark frames, calibration/, truth/,
             transforms.json) lead to outside the scene folder; refused by default.
@@ -277,7 +279,9 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         if meta["frames"][k].get("irradiance_scale") is not None:
             f.irradiance_scale = V.number(meta["frames"][k]["irradiance_scale"], tf, f"frames[{k}].irradiance_scale",
                                           lo=1e-3, hi=1e3)
-    _assign_split(frames, split_seed, validation)
+    if split_rule not in SPLIT_RULES:
+        raise UserError(f"split rule must be one of {SPLIT_RULES}, got {split_rule!r}", field="split_rule")
+    assign_split(frames, split_seed, split_rule, validation)
     if not any(f.split == "train" for f in frames):
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
                         field="frames[].split")
@@ -287,7 +291,8 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                   fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
                   dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
-                  value_range=(float(lo), float(hi)), split_seed=split_seed, validation=validation,
+                  value_range=(float(lo), float(hi)), split_seed=split_seed, split_rule=split_rule,
+                  validation=validation,
                   full_intrinsics=full_intr, origin=origin, crs=crs,
                   _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
     return scene
@@ -427,25 +432,6 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
                         f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
     own = None if own.is_pinhole_like(full_intr) else own
     return Frame(name, cube_path, c2w, vz, va, split or "", split is not None, own), src
-
-
-def _assign_split(frames: list[Frame], seed: int, validation: bool = False) -> None:
-    """Deterministic 6:1 split stratified by view ring (:mod:`brfgs.data.splits`); frames with a
-    given split keep it. With ``validation``, 1 in 6 of the training frames become "validation"."""
-    n = len(frames)
-    rings = view_rings([f.view_zenith_deg for f in frames])
-    n_test_target = max(1, round(n / TEST_EVERY))
-    n_test_given = sum(f.split == "test" for f in frames)
-    free = [i for i, f in enumerate(frames) if not f.split_given]
-    n_test_free = min(max(0, n_test_target - n_test_given), max(0, len(free) - 1))
-    test = set(stratified_pick(free, rings, n_test_free, seed))
-    for i in free:
-        frames[i].split = "test" if i in test else "train"
-    if validation:
-        train = [i for i, f in enumerate(frames) if f.split == "train"]
-        n_val = min(max(1, round(len(train) / VALIDATION_EVERY)), len(train) - 1)
-        for i in stratified_pick(train, rings, n_val, seed + 1):
-            frames[i].split = "validation"
 
 
 def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[CubeSource],

@@ -1,11 +1,22 @@
-"""Train / validation / test splits stratified by view ring.
+"""Train / validation / test splits stratified by view ring and spread over the view directions.
 
 A multi-angle flight images the scene from rings of equal view zenith (AIR-BRF: nadir and
 18°, 23°, 38°, 58°). A plain random 6:1 split can leave a whole ring out of the test set (the
-project's 128² testsite once had no 58° test view), so the default split draws its test views
-from every ring in proportion to the ring's size (largest-remainder apportionment, ties and
-the choice within a ring by a seeded permutation). The validation split takes 1 in 6 of the
-training views the same way (seed + 1); it is what settings are chosen on, never the test views.
+project's 128² testsite once had no 58° test view), so every split draws its test views from
+every ring in proportion to the ring's size (largest-remainder apportionment, ties by a seeded
+permutation). Which views of a ring are held out is the split's rule:
+
+- ``spread`` (the default): farthest-point sampling over the view directions. Each pick is the
+  view of a ring with picks left that lies farthest (in angle) from every view already held out,
+  ties in a seeded order. Held-out views never sit side by side on a ring or above one another
+  on neighbouring rings, so each is surrounded by training views at the layout's spacing: the
+  test measures interpolation between the flight's views, as LLFF's and Mip-NeRF 360's every-n-th
+  hold-out does for a camera path. A random choice can hold out neighbours and leave a hole twice
+  the spacing (docs/results.md, Session 29: test views 31° from any training view).
+- ``random`` (the rule before Session 30): a seeded permutation within each ring.
+
+The validation split takes 1 in 6 of the training views the same way (seed + 1; with ``spread``,
+also farthest from the test views); it is what settings are chosen on, never the test views.
 """
 
 from __future__ import annotations
@@ -14,7 +25,12 @@ import math
 
 import numpy as np
 
+from brfgs.data.angles import direction_from_angles_deg
+
 RING_TOLERANCE_DEG = 2.5  # view zeniths closer than this belong to one ring
+SPLIT_RULES = ("spread", "random")
+TEST_EVERY = 7  # 6 train : 1 test
+VALIDATION_EVERY = 6  # of the training views, 1 in 6 for validation (when asked for)
 
 
 def view_rings(zenith_deg: np.ndarray | list[float], tol_deg: float = RING_TOLERANCE_DEG) -> np.ndarray:
@@ -73,6 +89,57 @@ def stratified_pick(candidates: list[int], rings: np.ndarray, n_pick: int, seed:
             perm = rng.permutation(len(g))
             out += [g[j] for j in perm[:c]]
     return sorted(out)
+
+
+def spread_pick(candidates: list[int], rings: np.ndarray, dirs: np.ndarray, n_pick: int, seed: int,
+                held: list[int] = ()) -> list[int]:
+    """``n_pick`` of ``candidates`` (indices into ``rings`` [F] and the unit view directions
+    ``dirs`` [F, 3]), as many per ring as :func:`stratified_pick` takes, each the candidate farthest
+    in angle from the views already held out (``held``, then earlier picks): farthest-point sampling,
+    ties (to 0.001°) in a seeded order, so the first pick without ``held`` is a seeded random one."""
+    rng = np.random.default_rng(seed)
+    labels = sorted({float(rings[i]) for i in candidates})
+    groups = [[i for i in candidates if float(rings[i]) == lab] for lab in labels]
+    quota = dict(zip(labels, apportion([len(g) for g in groups], n_pick, rng)))
+    priority = {i: p for i, p in zip(candidates, rng.permutation(len(candidates)))}
+    chosen = [int(i) for i in held]
+    out: list[int] = []
+    for _ in range(sum(quota.values())):
+        left = [i for i in candidates if i not in out and quota[float(rings[i])] > 0]
+        far = nearest_view_angle_deg(dirs[left], dirs[chosen]) if chosen else np.full(len(left), np.inf)
+        best = max(range(len(left)), key=lambda j: (round(float(far[j]), 3), -priority[left[j]]))
+        out.append(left[best])
+        chosen.append(left[best])
+        quota[float(rings[left[best]])] -= 1
+    return sorted(out)
+
+
+def assign_split(frames: list, seed: int, rule: str = "spread", validation: bool = False) -> None:
+    """Set each frame's ``split`` (frames with ``split_given`` keep theirs): a deterministic 6:1
+    train:test split stratified by view ring, the held-out views chosen by ``rule`` (SPLIT_RULES);
+    with ``validation``, 1 in 6 of the training frames become "validation" (seed + 1)."""
+    n = len(frames)
+    rings = view_rings([f.view_zenith_deg for f in frames])
+    dirs = np.stack([direction_from_angles_deg(f.view_zenith_deg, f.view_azimuth_deg) for f in frames])
+    given_test = [i for i, f in enumerate(frames) if f.split_given and f.split == "test"]
+
+    def pick(cands: list[int], k: int, s: int, held: list[int]) -> list[int]:
+        if rule == "random":
+            return stratified_pick(cands, rings, k, s)
+        return spread_pick(cands, rings, dirs, k, s, held)
+
+    n_test_target = max(1, round(n / TEST_EVERY))
+    free = [i for i, f in enumerate(frames) if not f.split_given]
+    n_test_free = min(max(0, n_test_target - len(given_test)), max(0, len(free) - 1))
+    test = set(pick(free, n_test_free, seed, given_test))
+    for i in free:
+        frames[i].split = "test" if i in test else "train"
+    if validation:
+        train = [i for i, f in enumerate(frames) if f.split == "train"]
+        n_val = min(max(1, round(len(train) / VALIDATION_EVERY)), len(train) - 1)
+        held = [i for i, f in enumerate(frames) if f.split == "test"]
+        for i in pick(train, n_val, seed + 1, held):
+            frames[i].split = "validation"
 
 
 def nearest_view_angle_deg(held_dirs: np.ndarray, train_dirs: np.ndarray) -> np.ndarray:

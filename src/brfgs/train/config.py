@@ -17,6 +17,7 @@ import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+from brfgs.data.splits import SPLIT_RULES
 from brfgs.errors import UserError
 from brfgs.model.densify_config import DensifyConfig
 from brfgs.render.supersample import MAX_SUPERSAMPLE
@@ -29,7 +30,7 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 
 # Options whose default changed after they were added: a run folder's config.json written before the
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
-BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False}
+BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False, "split_rule": "random"}
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -205,6 +206,9 @@ class TrainConfig:
     threads: int = _opt(0, "CPU threads (0 = leave the default: all).")
     seed: int = _opt(0, "Seed of every random choice (view order, patches, splits of Gaussians, autoencoder).")
     split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split (stratified by view ring).")
+    split_rule: str = _opt("spread", "Which views of each ring are held out: spread (farthest-point over the view "
+                           "directions, so held-out views are never neighbours) or random (the rule before "
+                           "Session 30).")
     validation: bool = _opt(False, "Hold out 1 in 6 training views (stratified by view ring) as a validation split "
                             "and score them (metrics_validation.json): choose settings on these, never on test views.",
                             "--validation/--no-validation")
@@ -223,6 +227,8 @@ class TrainConfig:
     def validate(self) -> "TrainConfig":
         if self.variant not in VARIANTS:
             raise UserError(f"variant must be one of {VARIANTS}, got {self.variant!r}", field="variant")
+        if self.split_rule not in SPLIT_RULES:
+            raise UserError(f"split_rule must be one of {SPLIT_RULES}, got {self.split_rule!r}", field="split_rule")
         if self.decode not in DECODE_ORDERS:
             raise UserError(f"decode must be one of {DECODE_ORDERS}, got {self.decode!r}", field="decode")
         if not 1 <= self.latent_dim <= 32:

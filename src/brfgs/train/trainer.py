@@ -91,6 +91,7 @@ class Trainer:
         check_outside(self.out, self.scene_path)
         self._on_main(lambda: self.folder.prepare(self.cfg, self.overwrite))
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
+                                split_rule=self.cfg.split_rule,
                                 value_range=tuple(self.cfg.value_range), validation=self.cfg.validation,
                                 allow_outside_links=self.cfg.allow_outside_links)
         self._scale_schedule()
