@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from brfgs.cli import main
+from brfgs.data import read_scene
 from test_train_scene import make_plane_scene
 
 KEYS = ("psnr", "ssim", "lpips", "sam", "psnr_spectral")
@@ -35,12 +36,16 @@ def test_train_evaluate_cli(scene, tmp_path, capsys):
     assert main(["train", str(scene), str(out), *TINY]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["scene"] == "scene" and m["model"] == "BRF-GS"
-    assert m["split"]["test"] == ["view_03", "view_10"]
+    sc = read_scene(scene)  # the default split, spread over the view directions: 13 views (nadir + a 38° ring)
+    test = [sc.frames[i].name for i in sc.test_indices]
+    assert m["split"]["test"] == test and m["split"]["split_rule"] == "spread" and len(test) == 2
+    az = sorted(sc.frames[i].view_azimuth_deg for i in sc.test_indices)  # the ring's two held-out views: opposite
+    assert {sc.rings()[n] for n in test} == {"38"} and az[1] - az[0] == pytest.approx(180.0)
     _check_block(m["against"]["observed"], 2)
     _check_block(m["against"]["truth"], 2)
     assert m["settings"]["config"]["stage1_steps"] == 6
-    assert (out / "eval" / "renders" / "view_03.hdr").is_file()
-    assert (out / "eval" / "cir" / "view_03_vs_truth.png").is_file()
+    assert (out / "eval" / "renders" / f"{test[0]}.hdr").is_file()
+    assert (out / "eval" / "cir" / f"{test[0]}_vs_truth.png").is_file()
     # a finished run is never overwritten without --overwrite (exit status 2, message)
     assert main(["train", str(scene), str(out), *TINY]) == 2
     assert "--overwrite" in capsys.readouterr().err
