@@ -75,8 +75,9 @@ def test_spread_pick_takes_the_farthest_view():
 @pytest.mark.parametrize("seed", range(5))
 def test_spread_split_holds_out_no_neighbours(seed):
     """On the AIR-BRF layout (nadir + 4 rings x 12 azimuths) the spread rule's test views come from every ring,
-    and no two held-out views (test and validation) are neighbours: the smallest angle between two of them is
-    larger than the layout's smallest spacing (18° -> 23° at one azimuth: 5°; 18° ring neighbours: 9.2°)."""
+    no two test views are neighbours (the smallest angle between two is above 15°), no two held-out views
+    (test and validation) are one above the other on the 18° / 23° rings (5°) or side by side on the 18° ring
+    (9.2°), and every test view has a training view within 20°."""
     rings, dirs = view_rings(AIR_BRF_ZENITHS), _dirs(AIR_BRF_ZENITHS, AIR_BRF_AZIMUTHS)
     test = spread_pick(list(range(49)), rings, dirs, 7, seed)
     assert test == spread_pick(list(range(49)), rings, dirs, 7, seed)                    # deterministic
@@ -86,6 +87,7 @@ def test_spread_split_holds_out_no_neighbours(seed):
     train = [i for i in range(49) if i not in test]
     val = spread_pick(train, rings, dirs, 7, seed + 1, held=test)
     assert not set(val) & set(test) and _min_pair_angle_deg(dirs, test + val) > 9.3
+    assert nearest_view_angle_deg(dirs[test], dirs[train]).max() < 20.1          # the 38° view below a 58° one
     # the random rule holds out neighbours on some seeds: what the spread rule is for
     rnd = [stratified_pick(list(range(49)), rings, 7, s) for s in range(20)]
     assert min(_min_pair_angle_deg(dirs, t) for t in rnd) < 9.3

@@ -8,10 +8,11 @@ permutation). Which views of a ring are held out is the split's rule:
 
 - ``spread`` (the default): farthest-point sampling over the view directions. Each pick is the
   view of a ring with picks left that lies farthest (in angle) from every view already held out,
-  ties in a seeded order. Held-out views never sit side by side on a ring or above one another
-  on neighbouring rings, so each is surrounded by training views at the layout's spacing: the
-  test measures interpolation between the flight's views, as LLFF's and Mip-NeRF 360's every-n-th
-  hold-out does for a camera path. A random choice can hold out neighbours and leave a hole twice
+  ties in a seeded order. The held-out views lie as far apart as the layout allows, so each keeps
+  training views around it at the layout's spacing (on the 49-view AIR-BRF layout: every test
+  view within 20° of a training view, and no two test views side by side on a ring or one above
+  the other): the test measures interpolation between the flight's views, as
+  LLFF's and Mip-NeRF 360's every-n-th hold-out does for a camera path. A random choice can hold out neighbours and leave a hole twice
   the spacing (docs/results.md, Session 29: test views 31° from any training view).
 - ``random`` (the rule before Session 30): a seeded permutation within each ring.
 

@@ -207,7 +207,7 @@ class TrainConfig:
     seed: int = _opt(0, "Seed of every random choice (view order, patches, splits of Gaussians, autoencoder).")
     split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split (stratified by view ring).")
     split_rule: str = _opt("spread", "Which views of each ring are held out: spread (farthest-point over the view "
-                           "directions, so held-out views are never neighbours) or random (the rule before "
+                           "directions, so the held-out views lie as far apart as the layout allows) or random (the rule before "
                            "Session 30).")
     validation: bool = _opt(False, "Hold out 1 in 6 training views (stratified by view ring) as a validation split "
                             "and score them (metrics_validation.json): choose settings on these, never on test views.",
