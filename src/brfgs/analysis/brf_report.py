@@ -37,6 +37,7 @@ from brfgs.analysis.threads import torch_threads
 from brfgs.analysis.truth import brf_error, check_truth_spp, has_simulator_truth, truth_brf
 from brfgs.analysis.views import hemisphere_grid, principal_plane_directions
 from brfgs.data import read_scene
+from brfgs.data.splits import SPLIT_RULE_BEFORE
 from brfgs.data.angles import relative_azimuth_deg
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
@@ -96,7 +97,7 @@ def open_model_scene(tm: TrainedModel, scene_path: Path | None, required: bool) 
     kw = {"roi": tm.scene["roi"]} if tm.scene.get("roi") is not None else {}
     split_seed = int(tm.config.get("split_seed", 0))
     return read_scene(root, downscale=int(tm.scene.get("downscale", 1) or 1), split_seed=split_seed,
-                      split_rule=str(tm.config.get("split_rule", "random")),
+                      split_rule=str(tm.config.get("split_rule", SPLIT_RULE_BEFORE)),
                       allow_outside_links=bool(tm.config.get("allow_outside_links", False)), **kw)
 
 

@@ -24,6 +24,7 @@ from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
+from brfgs.data.splits import SPLIT_RULE_BEFORE
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
@@ -39,7 +40,7 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "te
         raise UserError("the model was trained on every training view: there is no validation split "
                         "(train with --validation)", field="split")
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
-                       split_rule=cfg.get("split_rule", "random"),
+                       split_rule=cfg.get("split_rule", SPLIT_RULE_BEFORE),
                        value_range=tuple(cfg["value_range"]), validation=bool(cfg.get("validation", False)),
                        allow_outside_links=bool(cfg.get("allow_outside_links", False)))
     where = root / "transforms.json"

@@ -28,7 +28,7 @@ from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
-from brfgs.data.splits import SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
+from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
 from brfgs.errors import UserError
 
 TRANSFORMS = "transforms.json"
@@ -72,7 +72,7 @@ class Scene:
     roi: tuple[int, int, int, int] | None = None   # (x0, y0, w, h) in full-resolution pixels
     value_range: tuple[float, float] = DEFAULT_VALUE_RANGE
     split_seed: int = 0
-    split_rule: str = "spread"
+    split_rule: str = DEFAULT_SPLIT_RULE
     validation: bool = False                # 1 in 6 training views held out as the validation split
     full_intrinsics: Intrinsics | None = None
     _sources: list[CubeSource] = field(default_factory=list, repr=False)
@@ -242,7 +242,7 @@ class Scene:
 def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.ndarray | None = None,
                roi: tuple[int, int, int, int] | None = None,
                value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0,
-               split_rule: str = "spread", allow_outside_links: bool = False, validation: bool = False) -> Scene:
+               split_rule: str = DEFAULT_SPLIT_RULE, allow_outside_links: bool = False, validation: bool = False) -> Scene:
     """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
 
     Args:

@@ -11,9 +11,10 @@ permutation). Which views of a ring are held out is the split's rule:
   ties in a seeded order. The held-out views lie as far apart as the layout allows, so each keeps
   training views around it at the layout's spacing (on the 49-view AIR-BRF layout: every test
   view within 20° of a training view, and no two test views side by side on a ring or one above
-  the other): the test measures interpolation between the flight's views, as
-  LLFF's and Mip-NeRF 360's every-n-th hold-out does for a camera path. A random choice can hold out neighbours and leave a hole twice
-  the spacing (docs/results.md, Session 29: test views 31° from any training view).
+  the other): the test measures interpolation between the flight's views, as LLFF's and
+  Mip-NeRF 360's every-n-th hold-out does for a camera path. A random choice can hold out
+  neighbours and leave a hole twice the spacing (docs/results.md, Session 29: test views 31°
+  from any training view).
 - ``random`` (the rule before Session 30): a seeded permutation within each ring.
 
 The validation split takes 1 in 6 of the training views the same way (seed + 1; with ``spread``,
@@ -30,6 +31,8 @@ from brfgs.data.angles import direction_from_angles_deg
 
 RING_TOLERANCE_DEG = 2.5  # view zeniths closer than this belong to one ring
 SPLIT_RULES = ("spread", "random")
+DEFAULT_SPLIT_RULE = "spread"
+SPLIT_RULE_BEFORE = "random"  # the rule of run folders and models written before the option (Session 30)
 TEST_EVERY = 7  # 6 train : 1 test
 VALIDATION_EVERY = 6  # of the training views, 1 in 6 for validation (when asked for)
 
@@ -77,13 +80,20 @@ def apportion(sizes: list[int], total: int, rng: np.random.Generator) -> list[in
     return picks
 
 
+def ring_groups(candidates: list[int], rings: np.ndarray, n_pick: int,
+                rng: np.random.Generator) -> tuple[list[list[int]], list[int]]:
+    """The ``candidates`` (indices into ``rings``) grouped by ring, in ascending ring order, and how
+    many of ``n_pick`` each group gives (:func:`apportion`, in proportion to the group's size)."""
+    labels = sorted({float(rings[i]) for i in candidates})
+    groups = [[i for i in candidates if float(rings[i]) == lab] for lab in labels]
+    return groups, apportion([len(g) for g in groups], n_pick, rng)
+
+
 def stratified_pick(candidates: list[int], rings: np.ndarray, n_pick: int, seed: int) -> list[int]:
     """``n_pick`` of ``candidates`` (indices into ``rings``) spread over the rings in proportion
     to how many candidates each ring has; deterministic from ``seed``."""
     rng = np.random.default_rng(seed)
-    labels = sorted({float(rings[i]) for i in candidates})
-    groups = [[i for i in candidates if float(rings[i]) == lab] for lab in labels]
-    counts = apportion([len(g) for g in groups], n_pick, rng)
+    groups, counts = ring_groups(candidates, rings, n_pick, rng)
     out: list[int] = []
     for g, c in zip(groups, counts):
         if c:
@@ -99,9 +109,8 @@ def spread_pick(candidates: list[int], rings: np.ndarray, dirs: np.ndarray, n_pi
     in angle from the views already held out (``held``, then earlier picks): farthest-point sampling,
     ties (to 0.001°) in a seeded order, so the first pick without ``held`` is a seeded random one."""
     rng = np.random.default_rng(seed)
-    labels = sorted({float(rings[i]) for i in candidates})
-    groups = [[i for i in candidates if float(rings[i]) == lab] for lab in labels]
-    quota = dict(zip(labels, apportion([len(g) for g in groups], n_pick, rng)))
+    groups, counts = ring_groups(candidates, rings, n_pick, rng)
+    quota = {float(rings[g[0]]): c for g, c in zip(groups, counts)}
     priority = {i: p for i, p in zip(candidates, rng.permutation(len(candidates)))}
     chosen = [int(i) for i in held]
     out: list[int] = []
@@ -115,7 +124,7 @@ def spread_pick(candidates: list[int], rings: np.ndarray, dirs: np.ndarray, n_pi
     return sorted(out)
 
 
-def assign_split(frames: list, seed: int, rule: str = "spread", validation: bool = False) -> None:
+def assign_split(frames: list, seed: int, rule: str = DEFAULT_SPLIT_RULE, validation: bool = False) -> None:
     """Set each frame's ``split`` (frames with ``split_given`` keep theirs): a deterministic 6:1
     train:test split stratified by view ring, the held-out views chosen by ``rule`` (SPLIT_RULES);
     with ``validation``, 1 in 6 of the training frames become "validation" (seed + 1)."""

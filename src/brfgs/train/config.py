@@ -17,7 +17,7 @@ import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from brfgs.data.splits import SPLIT_RULES
+from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULE_BEFORE, SPLIT_RULES
 from brfgs.errors import UserError
 from brfgs.model.densify_config import DensifyConfig
 from brfgs.render.supersample import MAX_SUPERSAMPLE
@@ -30,7 +30,8 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 
 # Options whose default changed after they were added: a run folder's config.json written before the
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
-BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False, "split_rule": "random"}
+BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False,
+                       "split_rule": SPLIT_RULE_BEFORE}
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -206,7 +207,7 @@ class TrainConfig:
     threads: int = _opt(0, "CPU threads (0 = leave the default: all).")
     seed: int = _opt(0, "Seed of every random choice (view order, patches, splits of Gaussians, autoencoder).")
     split_seed: int = _opt(0, "Seed of the deterministic 6:1 train/test split (stratified by view ring).")
-    split_rule: str = _opt("spread", "Which views of each ring are held out: spread (farthest-point over the view "
+    split_rule: str = _opt(DEFAULT_SPLIT_RULE, "Which views of each ring are held out: spread (farthest-point over the view "
                            "directions, so the held-out views lie as far apart as the layout allows) or random (the rule before "
                            "Session 30).")
     validation: bool = _opt(False, "Hold out 1 in 6 training views (stratified by view ring) as a validation split "
