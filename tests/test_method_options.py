@@ -13,7 +13,8 @@ import torch
 from brfgs.cli import main
 from brfgs.data import read_scene
 from brfgs.errors import UserError
-from brfgs.data.splits import apportion, assign_split, nearest_view_angle_deg, spread_pick, stratified_pick, view_rings
+from brfgs.data.splits import apportion, assign_split, nearest_view_angle_deg, spread_pick, stratified_pick, view_rings, \
+    view_spacing_deg
 from brfgs.model import TrainedModel, render
 from brfgs.cli.train import build_config
 from brfgs.train.config import ADDITIONS, FINE, PAPER_METHOD, PRESETS, TrainConfig, preset
@@ -135,6 +136,26 @@ def test_nearest_view_angle_against_the_spherical_law_of_cosines():
     np.testing.assert_allclose(got, want, atol=1e-6)
     assert nearest_view_angle_deg(dirs(train[:1]), dirs(train))[0] < 1e-4      # a training view itself: 0°
     assert np.isnan(nearest_view_angle_deg(dirs(held), np.zeros((0, 3)))).all()
+
+
+def test_view_spacing_of_the_air_brf_layout_and_a_closer_ring():
+    """Each view's angle to its nearest other view, from the spherical law of cosines in float64: on the AIR-BRF
+    layout 5° on the 18° and 23° rings (one above the other), 15° at 38° (the 23° view below), 20° at 58° (the
+    38° view below; the 58° ring's azimuth neighbours are 25.3° apart); a 53° ring brings the 58° views to 5°."""
+    def law(zen, azi):
+        z, a = np.radians(zen), np.radians(azi)
+        c = np.cos(z)[:, None] * np.cos(z)[None] + np.sin(z)[:, None] * np.sin(z)[None] * np.cos(a[:, None] - a[None])
+        np.fill_diagonal(c, -1.0)
+        return np.degrees(np.arccos(np.clip(c.max(1), -1, 1)))
+
+    zen, azi = np.array(AIR_BRF_ZENITHS), np.array(AIR_BRF_AZIMUTHS)
+    got = view_spacing_deg(_dirs(zen, azi))
+    np.testing.assert_allclose(got, law(zen, azi), atol=1e-6)
+    for ring, want in ((18.0, 5.0), (23.0, 5.0), (38.0, 15.0), (58.0, 20.0)):
+        np.testing.assert_allclose(got[zen == ring], want, atol=1e-6)
+    zen5, azi5 = np.concatenate([zen, np.full(12, 53.0)]), np.concatenate([azi, np.arange(12) * 30.0])
+    np.testing.assert_allclose(view_spacing_deg(_dirs(zen5, azi5))[zen5 == 58.0], 5.0, atol=1e-6)
+    assert np.isnan(view_spacing_deg(_dirs([10.0], [0.0]))).all()
 
 
 def test_scene_split_validation_and_rings(tmp_path):

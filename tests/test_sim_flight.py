@@ -46,6 +46,7 @@ def test_timed_flight_with_irradiance_drift(tmp_path):
     assert summ.flight["sun_zenith_range_deg"] == [zen.min(), zen.max()] and summ.flight["origin"]["latitude_deg"] == 48.1
     text = format_summary(summ)
     assert "frame suns" in text and "irradiance scale" in text and "origin" in text
+    assert set(summ.ring_spacing_deg) == set(summ.rings) and "view spacing" in text
     # the reader divides each frame by its irradiance scale: observed / scale ≈ the clean truth
     for i in (2, 9):
         obs, truth = sc.load_image(i), sc.load_truth(i)
