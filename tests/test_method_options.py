@@ -156,6 +156,8 @@ def test_view_spacing_of_the_air_brf_layout_and_a_closer_ring():
     zen5, azi5 = np.concatenate([zen, np.full(12, 53.0)]), np.concatenate([azi, np.arange(12) * 30.0])
     np.testing.assert_allclose(view_spacing_deg(_dirs(zen5, azi5))[zen5 == 58.0], 5.0, atol=1e-6)
     assert np.isnan(view_spacing_deg(_dirs([10.0], [0.0]))).all()
+    zr, ar = np.random.default_rng(0).uniform(0, 70, 1500), np.random.default_rng(1).uniform(0, 360, 1500)
+    np.testing.assert_allclose(view_spacing_deg(_dirs(zr, ar)), law(zr, ar), atol=1e-5)   # blocks of 1024 rows
 
 
 def test_scene_split_validation_and_rings(tmp_path):

@@ -181,7 +181,10 @@ def view_spacing_deg(dirs: np.ndarray) -> np.ndarray:
     d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     if len(d) < 2:
         return np.full(len(d), np.nan)
-    cos = np.clip(d @ d.T, -1.0, 1.0)                              # [F, F]
-    np.fill_diagonal(cos, -1.0)
-    return np.degrees(np.arccos(cos.max(axis=1)))
+    best = np.empty(len(d))
+    for start in range(0, len(d), 1024):                           # rows in blocks: a flight of 10^4 frames
+        cos = d[start:start + 1024] @ d.T                          # [<=1024, F]
+        cos[np.arange(len(cos)), np.arange(start, start + len(cos))] = -1.0   # not the view itself
+        best[start:start + len(cos)] = cos.max(axis=1)
+    return np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
 
