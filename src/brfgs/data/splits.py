@@ -164,8 +164,20 @@ def nearest_view_angle_deg(held_dirs: np.ndarray, train_dirs: np.ndarray) -> np.
     train = np.asarray(train_dirs, dtype=np.float64).reshape(-1, 3)
     if len(held) == 0 or len(train) == 0:
         return np.full(len(held), np.nan)
-    cos = np.clip(held @ train.T, -1.0, 1.0)                       # [M, N]
-    return np.degrees(np.arccos(cos.max(axis=1)))
+    return _nearest_angle_deg(held, train, skip_self=False)
+
+
+def _nearest_angle_deg(held: np.ndarray, train: np.ndarray, skip_self: bool) -> np.ndarray:
+    """Angle (deg) from each of ``held`` [M, 3] to the nearest of ``train`` [N, 3] -> [M], in blocks of
+    1,024 rows (a flight of 10^4 frames needs no 10^4 x 10^4 matrix); ``skip_self``: ``held`` is
+    ``train`` and row i does not count view i."""
+    best = np.empty(len(held))
+    for start in range(0, len(held), 1024):
+        cos = held[start:start + 1024] @ train.T                   # [<=1024, N]
+        if skip_self:
+            cos[np.arange(len(cos)), np.arange(start, start + len(cos))] = -1.0
+        best[start:start + len(cos)] = cos.max(axis=1)
+    return np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
 
 
 def view_spacing_deg(dirs: np.ndarray) -> np.ndarray:
@@ -181,10 +193,4 @@ def view_spacing_deg(dirs: np.ndarray) -> np.ndarray:
     d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     if len(d) < 2:
         return np.full(len(d), np.nan)
-    best = np.empty(len(d))
-    for start in range(0, len(d), 1024):                           # rows in blocks: a flight of 10^4 frames
-        cos = d[start:start + 1024] @ d.T                          # [<=1024, F]
-        cos[np.arange(len(cos)), np.arange(start, start + len(cos))] = -1.0   # not the view itself
-        best[start:start + len(cos)] = cos.max(axis=1)
-    return np.degrees(np.arccos(np.clip(best, -1.0, 1.0)))
-
+    return _nearest_angle_deg(d, d, skip_self=True)
