@@ -288,6 +288,16 @@ def test_validation_metrics_and_rings(trained):
     for ring, m in rings.items():
         views = [v["psnr"] for v in test["against"]["truth"]["views"] if v["name"] in test["split"]["rings"][ring]["test"]]
         assert m["psnr"] == pytest.approx(np.mean(views))
+    # each held-out view carries its angle to the nearest training view (split.json's), each ring
+    # their mean and largest: how far the ring's metrics extrapolate from the training views
+    near = test["split"]["nearest_train_view_deg"]
+    for block in (test, val):
+        views = block["against"]["truth"]["views"]
+        assert all(v["nearest_train_view_deg"] == near[v["name"]] > 0 for v in views)
+        for ring, m in block["against"]["truth"]["rings"].items():
+            ang = [near[n] for n in block["split"]["rings"][ring][block["evaluated_split"]]]
+            assert m["nearest_train_view_deg"]["mean"] == pytest.approx(np.mean(ang), abs=0.05)
+            assert m["nearest_train_view_deg"]["max"] == max(ang)
 
 
 def test_validation_split_needs_a_validation_run(trained, tmp_path, capsys):

@@ -1,7 +1,8 @@
 """``brfgs evaluate OUT``: render every test view of a trained run and score it.
 
 Writes ``OUT/metrics.json`` (conventions.md schema: per view and mean psnr, ssim, lpips,
-sam, psnr_spectral, and the mean per view ring under "rings"; "observed" = the test images,
+sam, psnr_spectral, and the mean per view ring under "rings"; each view and ring also carries the
+angle to the nearest training view, "nearest_train_view_deg"; "observed" = the test images,
 "truth" = the clean cubes of
 ``<scene>/truth/images/<name>.hdr`` when present), ENVI renders
 ``OUT/eval/renders/<name>.hdr`` and side-by-side CIR PNGs with error maps
@@ -121,12 +122,20 @@ def _settings(lm: TrainedModel, scene, backend: str) -> dict:
     }
 
 
-def ring_means(views: list[dict], rings: dict[str, str]) -> dict:
-    """{ring: {"n_views", mean metrics}} of per-view metric dicts (``rings``: frame name -> ring)."""
+def ring_means(views: list[dict], rings: dict[str, str], nearest_deg: dict[str, float] | None = None) -> dict:
+    """{ring: {"n_views", mean metrics}} of per-view metric dicts (``rings``: frame name -> ring).
+
+    ``nearest_deg`` (frame name -> deg, :meth:`Scene.nearest_train_view_deg`): each ring also gets
+    "nearest_train_view_deg" {"mean", "max"} over its views, the angle from a held-out view to the
+    nearest training view, which sets how far the ring's metrics extrapolate (docs/flights.md).
+    """
     out = {}
     for r in sorted({rings[v["name"]] for v in views}, key=float):
         sel = [v for v in views if rings[v["name"]] == r]
         out[r] = {"n_views": len(sel), **M.mean_metrics(sel)}
+        ang = [nearest_deg[v["name"]] for v in sel if nearest_deg and v["name"] in nearest_deg]
+        if ang:
+            out[r]["nearest_train_view_deg"] = {"mean": round(float(np.mean(ang)), 1), "max": float(max(ang))}
     return out
 
 
@@ -166,10 +175,12 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
             views[against].append(m)
         if materials is not None:
             by_mat[scene.frames[i].name] = materials
-    rings = scene.rings()
+    rings, nearest = scene.rings(), scene.nearest_train_view_deg()
+    for v in views["observed"] + views["truth"]:
+        v["nearest_train_view_deg"] = nearest.get(v["name"])
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
               "evaluated_split": split, "split": scene.split_record(), "settings": _settings(lm, scene, backend),
-              "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings), "views": v}
+              "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings, nearest), "views": v}
                           for k, v in views.items() if v}}
     if by_mat and "truth" in result["against"]:
         result["against"]["truth"]["materials"] = material_means(by_mat, rings, by_material.material_names(
@@ -202,8 +213,9 @@ def summary_lines(result: dict) -> list[str]:
                      f"SAM {f('sam', '.4f')} rad  PSNR-spectral {f('psnr_spectral', '.2f')} dB  LPIPS {f('lpips', '.3f')}")
         rings = block.get("rings") or {}
         if len(rings) > 1:
-            lines.append(" " * 29 + "per ring: " + ", ".join(
+            lines.append(" " * 29 + "per ring [angle to the nearest training view]: " + ", ".join(
                 f"{r}° {v['psnr']:.2f} dB" + (f"/{v['sam']:.4f}" if v.get("sam") is not None else "")
+                + (f" [{v['nearest_train_view_deg']['mean']:.0f}°]" if v.get("nearest_train_view_deg") else "")
                 for r, v in rings.items() if v.get("psnr") is not None))
         mats = list((block.get("materials") or {}).get("mean", {}).items())[:4]
         if mats:
