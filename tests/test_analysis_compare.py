@@ -153,7 +153,7 @@ def test_cli_compares_evaluated_runs(tmp_path, capsys):
     assert "missing/metrics.json" in capsys.readouterr().err
     assert main(["compare", f"{better},{run}", str(run)]) == 2
     assert "as many runs" in capsys.readouterr().err
-    assert main(["compare", str(better), str(run), "--split", "train"]) == 2
+    assert main(["compare", str(better), str(run), "--split", "held-out"]) == 2
     assert "--split" in capsys.readouterr().err
 
 

@@ -300,6 +300,23 @@ def test_validation_metrics_and_rings(trained):
             assert m["nearest_train_view_deg"]["max"] == max(ang)
 
 
+def test_evaluate_scores_the_training_views_on_request(trained, capsys):
+    """--split train: the fit of the model's own training views (metrics_train.json), none held out."""
+    _, out = trained
+    assert main(["evaluate", str(out), "--split", "train", "--quiet", "--no-images"]) == 0
+    assert "metrics_train.json" in capsys.readouterr().out
+    fit = json.loads((out / "metrics_train.json").read_text())
+    test = json.loads((out / "metrics.json").read_text())
+    assert fit["evaluated_split"] == "train"
+    views = fit["against"]["truth"]["views"]
+    assert [v["name"] for v in views] == test["split"]["train"]
+    assert not any("nearest_train_view_deg" in v for v in views)  # a training view is its own nearest
+    rings = fit["against"]["truth"]["rings"]
+    assert sum(r["n_views"] for r in rings.values()) == len(views)
+    assert all("nearest_train_view_deg" not in r for r in rings.values())
+    assert fit["against"]["truth"]["mean"]["psnr"] == pytest.approx(np.mean([v["psnr"] for v in views]))
+
+
 def test_validation_split_needs_a_validation_run(trained, tmp_path, capsys):
     root, _ = trained
     out = tmp_path / "r"

@@ -177,7 +177,8 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
             by_mat[scene.frames[i].name] = materials
     rings, nearest = scene.rings(), scene.nearest_train_view_deg()
     for v in views["observed"] + views["truth"]:
-        v["nearest_train_view_deg"] = nearest.get(v["name"])
+        if v["name"] in nearest:                        # held-out views only
+            v["nearest_train_view_deg"] = nearest[v["name"]]
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
               "evaluated_split": split, "split": scene.split_record(), "settings": _settings(lm, scene, backend),
               "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings, nearest), "views": v}
@@ -213,7 +214,8 @@ def summary_lines(result: dict) -> list[str]:
                      f"SAM {f('sam', '.4f')} rad  PSNR-spectral {f('psnr_spectral', '.2f')} dB  LPIPS {f('lpips', '.3f')}")
         rings = block.get("rings") or {}
         if len(rings) > 1:
-            lines.append(" " * 29 + "per ring [angle to the nearest training view]: " + ", ".join(
+            near = any(v.get("nearest_train_view_deg") for v in rings.values())
+            lines.append(" " * 29 + "per ring" + (" [angle to the nearest training view]" if near else "") + ": " + ", ".join(
                 f"{r}° {v['psnr']:.2f} dB" + (f"/{v['sam']:.4f}" if v.get("sam") is not None else "")
                 + (f" [{v['nearest_train_view_deg']['mean']:.0f}°]" if v.get("nearest_train_view_deg") else "")
                 for r, v in rings.items() if v.get("psnr") is not None))

@@ -9,7 +9,7 @@ from brfgs.errors import UserError
 
 __all__ = ["check_output_dir", "prepare_output_dir", "run_folder", "safe_name", "Report", "SPLITS", "metrics_file"]
 
-SPLITS = ("test", "validation")  # the held-out views a run is scored on
+SPLITS = ("test", "validation", "train")  # the views a run is scored on: held out, or its own (the fit)
 
 
 def metrics_file(split: str = "test") -> str:

@@ -21,8 +21,8 @@ def register(app: typer.Typer) -> None:
                                 "configuration, or with --scenes one run per scene), evaluated by brfgs train/evaluate."),
         b: str = typer.Argument(..., metavar="B", help="Run folder(s) of model B, the reference (same scene and split; "
                                 "seeds, or with --scenes scenes, paired with A's in the order given)."),
-        split: str = typer.Option("test", "--split", help="test (metrics.json) or validation "
-                                  "(metrics_validation.json)."),
+        split: str = typer.Option("test", "--split", help="test (metrics.json), validation "
+                                  "(metrics_validation.json) or train (metrics_train.json)."),
         against: str = typer.Option("truth", "--against", help="truth (simulated scenes) or observed."),
         resamples: int = typer.Option(10000, "--resamples", help="Bootstrap resamples of the views."),
         seed: int = typer.Option(0, "--seed", help="Seed of the bootstrap."),

@@ -92,8 +92,10 @@ def register(app: typer.Typer) -> None:
         backend: str = typer.Option(None, "--backend", help="Rasterizer backend: auto | torch | cpu | cuda "
                                     "(default: the one the model was trained with, so the digits match training's)."),
         images: bool = typer.Option(True, "--images/--no-images", help="Write ENVI renders and CIR PNGs."),
-        split: str = typer.Option("test", "--split", help="Views to score: test (metrics.json) or validation "
-                                  "(metrics_validation.json; runs trained with --validation)."),
+        split: str = typer.Option("test", "--split", help="Views to score: test (metrics.json), validation "
+                                  "(metrics_validation.json; runs trained with --validation) or train "
+                                  "(metrics_train.json: the fit of the training views, to tell a model that "
+                                  "underfits from one that does not generalise)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Render every test view; write OUT/metrics.json (per view, per view ring and mean, with each view's angle
