@@ -150,9 +150,9 @@ def material_means(by_view: dict[str, dict], rings: dict[str, str], names: dict[
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE,
                  split: str = "test") -> dict:
-    """Evaluate the trained model of ``out_dir`` on its ``split`` views ("test", or "validation" for
-    a run trained with ``--validation``); writes and returns the metrics dict (metrics.json, or
-    metrics_validation.json).
+    """Evaluate the trained model of ``out_dir`` on its ``split`` views ("test", "validation" for
+    a run trained with ``--validation``, or "train": the fit of its own training views); writes and
+    returns the metrics dict (metrics.json, metrics_validation.json or metrics_train.json).
 
     ``backend`` None: the rasterizer backend the model was trained with (recorded in
     metrics.json), so that the evaluation at the end of ``brfgs train`` and a later
