@@ -109,6 +109,8 @@ def test_read_scores_maps_views_to_rings_and_names_bad_fields(tmp_path):
     assert list(s.psnr_db) == [32.0, 25.0, 31.0]
     with pytest.raises(UserError, match="metrics_validation.json"):
         C.read_scores(run, split="validation")
+    with pytest.raises(UserError, match=r"metrics_train.json.*brfgs evaluate RUN --split train"):
+        C.read_scores(run, split="train")
     bad = _metrics(views)
     bad["against"]["truth"]["views"][1]["sam"] = None
     bad["against"]["truth"]["views"][1]["sam_reason"] = "no truth cube"

@@ -84,7 +84,7 @@ def read_scores(run: str | Path, split: str = "test", against: str = "truth") ->
     require(against in AGAINST, f"expected one of {', '.join(AGAINST)}, got {against!r}", field="--against")
     path = metrics_path(Path(run), split)
     if not path.is_file():
-        hint = " (run `brfgs evaluate RUN --split validation`)" if split == "validation" else ""
+        hint = f" (run `brfgs evaluate RUN --split {split}`)" if split != "test" else ""
         raise UserError(f"no metrics file; evaluate the run first{hint}", file=path)
     try:
         data = json.loads(path.read_text())
