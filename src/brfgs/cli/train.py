@@ -98,9 +98,10 @@ def register(app: typer.Typer) -> None:
                                   "underfits from one that does not generalise)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
-        """Render every test view; write OUT/metrics.json (per view, per view ring and mean, with each view's angle
-        to the nearest training view; on simulated scenes also per material, with the rendered opacity and the
-        ray-wise depth spread), ENVI renders and CIR comparison PNGs."""
+        """Render and score the views of --split (the test views by default); write OUT/metrics.json (per view,
+        per view ring and mean, with each held-out view's angle to the nearest training view; on simulated scenes
+        also per material, with the rendered opacity and the ray-wise depth spread), ENVI renders and CIR
+        comparison PNGs."""
         from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
 
         res = evaluate_run(out, scene, backend=backend, write_images=images, progress=not quiet, split=split)
