@@ -122,18 +122,17 @@ def _settings(lm: TrainedModel, scene, backend: str) -> dict:
     }
 
 
-def ring_means(views: list[dict], rings: dict[str, str], nearest_deg: dict[str, float] | None = None) -> dict:
+def ring_means(views: list[dict], rings: dict[str, str]) -> dict:
     """{ring: {"n_views", mean metrics}} of per-view metric dicts (``rings``: frame name -> ring).
 
-    ``nearest_deg`` (frame name -> deg, :meth:`Scene.nearest_train_view_deg`): each ring also gets
-    "nearest_train_view_deg" {"mean", "max"} over its views, the angle from a held-out view to the
-    nearest training view, which sets how far the ring's metrics extrapolate (docs/flights.md).
+    Where the views carry "nearest_train_view_deg" (held-out views: the angle to the nearest training
+    view), the ring gets its {"mean", "max"}: how far the ring's metrics extrapolate (docs/flights.md).
     """
     out = {}
     for r in sorted({rings[v["name"]] for v in views}, key=float):
         sel = [v for v in views if rings[v["name"]] == r]
         out[r] = {"n_views": len(sel), **M.mean_metrics(sel)}
-        ang = [nearest_deg[v["name"]] for v in sel if nearest_deg and v["name"] in nearest_deg]
+        ang = [v["nearest_train_view_deg"] for v in sel if "nearest_train_view_deg" in v]
         if ang:
             out[r]["nearest_train_view_deg"] = {"mean": round(float(np.mean(ang)), 1), "max": float(max(ang))}
     return out
@@ -175,13 +174,14 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
             views[against].append(m)
         if materials is not None:
             by_mat[scene.frames[i].name] = materials
-    rings, nearest = scene.rings(), scene.nearest_train_view_deg()
+    rings, record = scene.rings(), scene.split_record()
+    nearest = record["nearest_train_view_deg"]                 # held-out views only
     for v in views["observed"] + views["truth"]:
-        if v["name"] in nearest:                        # held-out views only
+        if v["name"] in nearest:
             v["nearest_train_view_deg"] = nearest[v["name"]]
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
-              "evaluated_split": split, "split": scene.split_record(), "settings": _settings(lm, scene, backend),
-              "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings, nearest), "views": v}
+              "evaluated_split": split, "split": record, "settings": _settings(lm, scene, backend),
+              "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings), "views": v}
                           for k, v in views.items() if v}}
     if by_mat and "truth" in result["against"]:
         result["against"]["truth"]["materials"] = material_means(by_mat, rings, by_material.material_names(
