@@ -406,3 +406,66 @@ def test_table2_runs_fit_the_selected_bands_only_in_stage_1():
     assert all(not cfg.stage1_cir_bands for _, _, cfg, _ in runs)
     # every other option as given: the paper's tables with the paper's method come from --preset paper-fast
     assert all(cfg.lr_spec == 1e-2 for _, _, cfg, _ in _runs("kernels", preset("paper-fast")))
+
+
+def test_refinement_moves_geometry_and_head_without_densifying(trained, tmp_path):
+    """--refine-steps: after stage 2 a third phase trains the geometry and the head together on all
+    bands, with no densification (the Gaussian count stays), at the rates stage 1 ended with times
+    --refine-lr-scale; the refined model differs from stage 2's end in its means and latents."""
+    from brfgs.train.phases import Phase, plan
+    from brfgs.train.schedule import learning_rates, means_lr
+    cfg = preset("tiny", refine_steps=5, refine_lr_scale=0.5)
+    assert [p for p, _ in plan("brf", False, 3, 4, 5)] == [Phase.STAGE1, Phase.STAGE2, Phase.REFINE]
+    assert [p for p, _ in plan("brf", True, 3, 4, 5)] == [Phase.JOINT]
+    lrs = learning_rates(cfg, Phase.REFINE, 0, 5, 10.0)
+    assert lrs["means"] == pytest.approx(0.5 * means_lr(cfg, 5, 5, 10.0))
+    assert lrs["opacity_logits"] == pytest.approx(0.5 * cfg.lr_opacity) and lrs["z_iso"] == cfg.lr_latent
+    assert Phase.REFINE.trains_geometry and Phase.REFINE.fits_head and not Phase.REFINE.grows
+    scene, _ = trained
+    base, ref = tmp_path / "base", tmp_path / "ref"
+    args = ["--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "6", "--threads", "1", "--quiet", "--no-evaluate"]
+    assert main(["train", str(scene), str(base), *args]) == 0
+    assert main(["train", str(scene), str(ref), *args, "--refine-steps", "6"]) == 0
+    rows = [r.split(",") for r in (ref / "train_log.csv").read_text().splitlines()[1:]]
+    refine = [r for r in rows if r[0] == "refine"]
+    assert [int(r[1]) for r in refine] == list(range(1, 7))
+    assert len({r[4] for r in refine}) == 1 and refine[0][4] == [r for r in rows if r[0] == "stage2"][-1][4]
+    a, b = (TrainedModel.load(p / "model.safetensors").gaussians.params for p in (base, ref))
+    assert not torch.equal(a["means"], b["means"]) and not torch.equal(a["z_iso"], b["z_iso"])
+    assert json.loads((ref / "run.json").read_text())["timings_s"]["refine"] > 0
+    assert main(["train", str(scene), str(tmp_path / "bad"), "--refine-steps", "-1", "--quiet"]) == 2
+
+
+def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
+    """--stage1-kernels: a stage-1 colour is c_iso + c_vol K_Ross + c_geo K_Li (eq. 12 on the stage-1
+    bands), against the float64 MODIS kernels of brfgs.brdf.reference; a run trains them."""
+    from brfgs.brdf.reference import li_sparse_r_ref, ross_thick_ref
+    from brfgs.brdf.geometry import view_directions
+    from brfgs.model.features import stage1_colors
+    from brfgs.model.gaussians import GaussianModel
+    g = torch.Generator().manual_seed(0)
+    n, k = 5, 3
+    params = {"means": torch.randn(n, 3, generator=g) * 5, "log_scales": torch.zeros(n, 3), "quats": torch.tensor([[1.0, 0, 0, 0]] * n),
+              "opacity_logits": torch.zeros(n), "colors": torch.rand(n, k, generator=g),
+              "colors_kernels": torch.randn(n, 2, k, generator=g)}
+    gm = GaussianModel(params, "brf", 4, k)
+    tm = TrainedModel.load(trained[1] / "model.safetensors")
+    cam = tm.cameras[3]
+    sun = torch.tensor([0.3, -0.2, 0.0])
+    sun[2] = (1 - (sun[:2] ** 2).sum()).sqrt()
+    got = stage1_colors(gm, cam, sun).detach().numpy()
+    wo = view_directions(gm.means, cam.centre).detach().numpy().astype(np.float64)  # [N, 3]
+    wi = np.broadcast_to(sun.numpy().astype(np.float64), wo.shape)
+    ti, tv = (torch.as_tensor(np.arccos(w[:, 2])) for w in (wi, wo))  # zeniths, rad
+    phi = torch.as_tensor(np.arctan2(wi[:, 1], wi[:, 0]) - np.arctan2(wo[:, 1], wo[:, 0]))  # relative azimuth
+    kv, kg = ross_thick_ref(ti, tv, phi).numpy(), li_sparse_r_ref(ti, tv, phi).numpy()  # [N], float64
+    c = params["colors"].numpy().astype(np.float64)
+    ck = params["colors_kernels"].numpy().astype(np.float64)
+    np.testing.assert_allclose(got, c + kv[:, None] * ck[:, 0] + kg[:, None] * ck[:, 1], rtol=1e-4, atol=1e-5)
+    scene, _ = trained
+    out = tmp_path / "k1"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "12", "--stage2-steps", "4",
+                 "--stage1-kernels", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
+    p = TrainedModel.load(out / "model.safetensors").gaussians.params
+    assert p["colors_kernels"].shape[1:] == (2, p["colors"].shape[1]) and p["colors_kernels"].abs().sum() > 0
+

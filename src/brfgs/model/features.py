@@ -74,16 +74,22 @@ def gaussian_features(
     return evaluate_head(head_cfg, head_params(model), normals, sun_dir, omega_o)
 
 
-def stage1_colors(model: GaussianModel, cam: Camera) -> Tensor:  # [N, k]
+def stage1_colors(model: GaussianModel, cam: Camera, sun_dir: Tensor | None = None) -> Tensor:  # [N, k]
     """Stage-1 reflectance of the stage-1 bands [N, k] for ``cam``: ``colors`` plus, when the model
-    has ``colors_rest`` [N, s, k], the SH rest terms Σ_j Y_j(ω_o) · rest_j (degree 1–3, 3DGS style)."""
+    has ``colors_rest`` [N, s, k], the SH rest terms Σ_j Y_j(ω_o) · rest_j (degree 1–3, 3DGS style),
+    and when it has ``colors_kernels`` [N, 2, k], the kernel terms c_vol K_Ross + c_geo K_Li of eq. 12
+    on the stage-1 bands (``sun_dir`` [3] unit, toward the sun)."""
     col = model["colors"]
-    if "colors_rest" not in model:
-        return col
-    rest = model["colors_rest"]  # [N, s, k]
-    degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
-    basis = sh_basis(degree, view_directions(model.means, cam.centre))[:, 1:]  # [N, s]
-    return col + (basis[:, :, None] * rest).sum(1)
+    if "colors_rest" in model:
+        rest = model["colors_rest"]  # [N, s, k]
+        degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
+        basis = sh_basis(degree, view_directions(model.means, cam.centre))[:, 1:]  # [N, s]
+        col = col + (basis[:, :, None] * rest).sum(1)
+    if "colors_kernels" in model:
+        kern = hybrid_kernels(None, sun_dir, view_directions(model.means, cam.centre), components=("vol", "geo"))
+        basis = torch.stack([kern["vol"], kern["geo"]], -1)  # [N, 2]
+        col = col + (basis[:, :, None] * model["colors_kernels"]).sum(1)
+    return col
 
 
 def camera_depth(model: GaussianModel, cam: Camera) -> Tensor:  # [N] m

@@ -11,6 +11,7 @@ quats              [N, 4]       rotation (w, x, y, z), normalised when used
 opacity_logits     [N]          o_k = sigmoid(logit)
 colors             [N, k]       stage-1 reflectance in the k geometry-reliable bands
 colors_rest        [N, s, k]    optional SH rest coefficients of the stage-1 colours (s = 3, 8, 15)
+colors_kernels     [N, 2, k]    optional K_Ross and K_Li coefficients of the stage-1 colours
 z_iso .. z_spec    [N, d]       latent kernel coefficients (eq. 11-12), appearance "brf"
 rho_raw            [N]          roughness (brfgs.brdf.head.roughness_from_raw)
 sh                 [N, 16, c]   SH coefficients (appearance "sh": c = d; "cir": c = 3)
@@ -37,7 +38,7 @@ from brfgs.model.filter3d import filtered_scales, opacity_factor
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
 # kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
-KEPT_KEYS = ("colors", "colors_rest", "far", "far_ground_z")
+KEPT_KEYS = ("colors", "colors_rest", "colors_kernels", "far", "far_ground_z")
 APPEARANCES = ("brf", "sh", "neural", "cir")
 
 

@@ -79,6 +79,11 @@ class TrainConfig:
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
     stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
     stage2_steps: int = _opt(750, "Stage-2 (BRDF) steps (for 17 training views: see --schedule-ref-views).")
+    refine_steps: int = _opt(0, "Stage-3 steps after stage 2 (for 17 training views, scaled as stage 2): geometry and "
+                             "the appearance head refined together on all bands, no densification (0 = off; not in "
+                             "the paper; measured worse: the geometry fits the bands' noise, docs/method.md).")
+    refine_lr_scale: float = _opt(1.0, "Geometry learning rates of the refinement, as a multiple of those stage 1 "
+                                  "ended with.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
     lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
@@ -124,6 +129,10 @@ class TrainConfig:
                                      "from fitting the noise of their observations (brightness is free; 0 = off).")
     stage1_sh_degree: int = _opt(0, "View dependence of the stage-1 colours: SH degree 0 (none, as the paper) to 3 "
                                  "(as 3DGS; measured worse on validation views, docs/method.md).")
+    stage1_kernels: bool = _opt(False, "Stage-1 colours with the view dependence of eq. 12's volumetric and geometric "
+                                "kernels, c_iso + c_vol K_Ross + c_geo K_Li per stage-1 band, instead of none (measured "
+                                "neutral, docs/method.md).",
+                                "--stage1-kernels/--stage1-flat-colours")
     lr_normals: float = _opt(2e-3, "Adam learning rate of the learned shading normals.")
     lr_means: float = _opt(1.6e-4, "Initial learning rate of the means (x scene extent in m).")
     lr_means_final: float = _opt(1.6e-6, "Final learning rate of the means (x scene extent in m).")
@@ -234,13 +243,13 @@ class TrainConfig:
             raise UserError(f"decode must be one of {DECODE_ORDERS}, got {self.decode!r}", field="decode")
         if not 1 <= self.latent_dim <= 32:
             raise UserError(f"latent_dim must be in 1..32, got {self.latent_dim}", field="latent_dim")
-        if self.stage1_steps < 0 or self.stage2_steps < 0:
+        if self.stage1_steps < 0 or self.stage2_steps < 0 or self.refine_steps < 0:
             raise UserError("step counts must be >= 0", field="stage1_steps")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         nonneg = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview", "lambda_spectral_tv",
-                  "wd_spec", "spec_shrink", "normal_edge_rel")
+                  "wd_spec", "spec_shrink", "normal_edge_rel", "refine_lr_scale")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
@@ -398,14 +407,14 @@ ADDITIONS: dict[str, Addition] = {
 
 def scaled_schedule(cfg: "TrainConfig", n_train_views: int) -> "TrainConfig":
     """The options a run on ``n_train_views`` training views trains with: stage1_steps,
-    stage2_steps, densify.refine_stop and max_gaussians_per_px times s = max(1, n_train_views /
+    stage2_steps, refine_steps, densify.refine_stop and max_gaussians_per_px times s = max(1, n_train_views /
     schedule_ref_views), and schedule_ref_views 0 (applied; the result is not scaled again).
     ``cfg`` itself when schedule_ref_views is 0 (the values as given)."""
     if cfg.schedule_ref_views <= 0:
         return cfg
     s = max(1.0, n_train_views / cfg.schedule_ref_views)
     return replace(cfg, stage1_steps=int(round(cfg.stage1_steps * s)), stage2_steps=int(round(cfg.stage2_steps * s)),
-                   max_gaussians_per_px=round(cfg.max_gaussians_per_px * s, 4),
+                   refine_steps=int(round(cfg.refine_steps * s)), max_gaussians_per_px=round(cfg.max_gaussians_per_px * s, 4),
                    densify=replace(cfg.densify, refine_stop=int(round(cfg.densify.refine_stop * s))),
                    schedule_ref_views=0)
 

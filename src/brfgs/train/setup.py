@@ -103,6 +103,8 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
     if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         k = gm["colors"].shape[1]
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
+    if cfg.stage1_kernels:  # stage-1 colours with the volumetric and geometric kernels' view dependence
+        gm.params["colors_kernels"] = torch.zeros(gm.n, 2, gm["colors"].shape[1], requires_grad=True)
     state.densify = DensifyState(gm.n)
     bg = np.nanmean(init.colors, 0) if s1 == bands else gm["colors"].detach().mean(0).numpy()  # [C]
     state.extra = {"bg_colors": torch.as_tensor(bg, dtype=torch.float32).requires_grad_(True)}
@@ -172,6 +174,6 @@ def run_setup(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, pro
         state.timings["autoencoder"] = time.perf_counter() - t
     if cfg.variant == "cir" or cfg.joint:
         init_head(state, cfg, scene, images)
-    state.phase = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps)[0][0]
+    state.phase = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)[0][0]
     state.step = 0
     return images

@@ -54,7 +54,9 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
 
     Patches of ``patch_px`` for large images; in the joint phase, and in stage 2 with decode
     order "gaussian", square patches of about ``stage2_rays`` pixels (every pixel is scored there:
-    for the D-SSIM term, or because the spectra are blended, not decoded per pixel).
+    for the D-SSIM term, or because the spectra are blended, not decoded per pixel). The
+    refinement scores whole views, as stage 1 does: a patch smaller than the view would train the
+    view's border less often than its centre.
     """
     if not state.perm:
         state.perm = torch.randperm(len(train_indices), generator=state.gen).tolist()
@@ -94,7 +96,7 @@ def neighbours(means: Tensor, k: int = 8) -> Tensor:  # [N, k] long
 def _features(state: TrainState, cfg: TrainConfig, phase: Phase, cam: Camera, i: int) -> Tensor:
     """Per-Gaussian features [N, C] the phase renders for training frame ``i`` (under its sun)."""
     if phase == Phase.STAGE1:
-        return stage1_colors(state.gaussians, cam)
+        return stage1_colors(state.gaussians, cam, state.sun_of(i))
     neural = state.neural if phase != Phase.CIR else None
     return gaussian_features(state.gaussians, cam, state.sun_of(i), head_config(cfg), neural, ref_sun=state.sun)
 
@@ -233,7 +235,7 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
     pred = pred * _frame_gain(state, batch.index)
     greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
     loss = stage2_loss(pred, batch.target, batch.valid, cfg.beta_cos)
-    if phase == Phase.STAGE2 and cfg.lambda_spectral_tv > 0:  # every pixel against its neighbours
+    if phase in (Phase.STAGE2, Phase.REFINE) and cfg.lambda_spectral_tv > 0:  # every pixel against its neighbours
         flat = pred.reshape(-1, pred.shape[-1])  # [H·W, B]
         idx = torch.arange(flat.shape[0])
         loss = loss + cfg.lambda_spectral_tv * _spectral_tv(lambda q: flat[q], batch.target, batch.valid, idx, flat)
@@ -246,7 +248,7 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
 def supersample_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int) -> int:
     """Sub-pixel samples per axis at ``step`` of ``phase``: 1 in a geometry phase before
     ``supersample_start`` of its ``phase_steps``, else ``cfg.supersample``."""
-    if phase.trains_geometry and step < int(cfg.supersample_start * phase_steps):
+    if phase.grows and step < int(cfg.supersample_start * phase_steps):
         return 1
     return cfg.supersample
 
@@ -255,7 +257,7 @@ def coarse_factor_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: in
     """Block size 2^k of the coarse-to-fine photometric loss at ``step`` of ``phase``: k falls from
     ``coarse_levels`` to 1 over ``coarse_until`` of a geometry phase's ``phase_steps``, then 1."""
     end = cfg.coarse_until * phase_steps
-    if cfg.coarse_levels <= 0 or not phase.trains_geometry or step >= end:
+    if cfg.coarse_levels <= 0 or not phase.grows or step >= end:
         return 1
     k = math.ceil(cfg.coarse_levels * (1 - step / end))
     return 2 ** min(max(k, 1), cfg.coarse_levels)
@@ -298,16 +300,17 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     c = cfg
     surf = (c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0 or c.lambda_sparse_depth > 0
             or c.lambda_dense_depth > 0 or c.lambda_multiview > 0)
-    use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
+    # the surface priors start at normal_start of a growing phase; a refinement keeps them throughout
+    use_priors = phase.trains_geometry and surf and (not phase.grows or state.step >= int(c.normal_start * phase_steps))
     feats = _features(state, cfg, phase, batch.cam, batch.index)
-    by_gaussian = c.decode == "gaussian" and phase in (Phase.STAGE2, Phase.JOINT)
+    by_gaussian = c.decode == "gaussian" and phase.fits_head
     subset = None
     if by_gaussian:
         feats, subset = _decoded_features(state, phase, feats, batch.cam)
     n_feat = feats.shape[-1]
     if use_priors:  # depth + normal (+ depth²) channels for the surface priors
         feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
-    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.trains_geometry and c.densify.absgrad,
+    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.grows and c.densify.absgrad,
                      ss=supersample_now(c, phase, state.step, phase_steps))
     image = out.image[..., :n_feat]
     greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None

@@ -75,7 +75,7 @@ class Trainer:
         self.from_stage1 = Path(from_stage1) if from_stage1 else None
         self.log = (log if self.comm.is_main else None) or (lambda *a, **k: None)
         self.state = TrainState(self.cfg)
-        self.phases = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps)
+        self.phases = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)
         self.scene = None
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
@@ -143,7 +143,8 @@ class Trainer:
         given = self.cfg
         self.cfg = scaled_schedule(given, n_train)
         self.state.cfg = self.cfg
-        self.phases = plan(self.cfg.variant, self.cfg.joint, self.cfg.stage1_steps, self.cfg.stage2_steps)
+        self.phases = plan(self.cfg.variant, self.cfg.joint, self.cfg.stage1_steps, self.cfg.stage2_steps,
+                           self.cfg.refine_steps)
         self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
                          "scale": self.cfg.stage1_steps / given.stage1_steps if given.stage1_steps else 1.0,
                          "stage1_steps": self.cfg.stage1_steps, "stage2_steps": self.cfg.stage2_steps,
@@ -316,7 +317,7 @@ class Trainer:
         if st.decoder is not None:
             st.decoder.requires_grad_(bool(c.finetune_decoder and phase.fits_head))
         strategy = DensifyStrategy(c.densify, c.max_gaussians_per_px, self.scene.width, self.scene.height,
-                                   st.meta["extent_m"]) if phase.trains_geometry else None
+                                   st.meta["extent_m"]) if phase.grows else None
         nbrs = None  # stage 2 (means frozen): each Gaussian's 8 nearest neighbours, for the normal smoothness
         if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in st.gaussians:
             nbrs = neighbours(st.gaussians.means)
