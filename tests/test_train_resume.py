@@ -68,6 +68,21 @@ def test_damaged_newest_checkpoint_resumes_from_the_previous_one(scene, tmp_path
     assert len(set(_log_keys(run))) == len(_log_keys(run))
 
 
+def test_a_run_interrupted_in_the_refinement_resumes_bit_for_bit(scene, tmp_path):
+    """--refine-steps: Ctrl-C inside the third phase keeps a checkpoint there, and rerunning gives the
+    uninterrupted run's tensors and log rows."""
+    cfg = _cfg(refine_steps=6)
+    ref = train(scene, tmp_path / "ref", cfg, progress=False, log=None)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, run, cfg, progress=False, callback=_interrupt_at(("refine", 3)), log=None)
+    assert load(run / "checkpoints" / "last.safetensors")[1]["phase"] == "refine"
+    out = train(scene, run, cfg, progress=False, log=None)
+    ta, tb = load(ref)[0], load(out)[0]
+    assert ta.keys() == tb.keys() and all(torch.equal(ta[k], tb[k]) for k in ta)
+    assert _log_keys(run) == _log_keys(tmp_path / "ref") and ("refine", 6) in _log_keys(run)
+
+
 def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
