@@ -81,7 +81,7 @@ class TrainConfig:
     stage2_steps: int = _opt(750, "Stage-2 (BRDF) steps (for 17 training views: see --schedule-ref-views).")
     refine_steps: int = _opt(0, "Stage-3 steps after stage 2 (for 17 training views, scaled as stage 2): geometry and "
                              "the appearance head refined together on all bands, no densification (0 = off; not in "
-                             "the paper; measured worse: the geometry fits the bands' noise, docs/method.md).")
+                             "the paper; measured worse on the forest, docs/method.md).")
     refine_lr_scale: float = _opt(1.0, "Geometry learning rates of the refinement, as a multiple of those stage 1 "
                                   "ended with.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")

@@ -32,7 +32,7 @@ class Phase(str, Enum):
 
     @property
     def trains_geometry(self) -> bool:
-        """μ, Σ and opacity are optimised (and densified) in this phase."""
+        """μ, Σ and opacity are optimised in this phase (densified too where :attr:`grows`)."""
         return self in (Phase.STAGE1, Phase.REFINE, Phase.JOINT, Phase.CIR)
 
     @property

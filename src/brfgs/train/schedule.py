@@ -27,11 +27,12 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     lrs: dict[str, float] = {}
     if phase.trains_geometry:  # the refinement: the rates stage 1 ended with, times refine_lr_scale
         s = c.refine_lr_scale if phase == Phase.REFINE else 1.0
-        mean_lr = means_lr(c, 1, 1, extent_m) if phase == Phase.REFINE else means_lr(c, step, steps, extent_m)
+        mean_lr = c.lr_means_final * extent_m if phase == Phase.REFINE else means_lr(c, step, steps, extent_m)
         lrs.update({"means": s * mean_lr, "log_scales": s * c.lr_scales, "quats": s * c.lr_quats,
                     "opacity_logits": s * c.lr_opacity})
-    if phase == Phase.STAGE1:
-        lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "colors_kernels": c.lr_colors / 20.0, "bg_colors": c.lr_background})
+    if phase == Phase.STAGE1:  # the view-dependent terms (SH rest, kernels) at a twentieth, as 3DGS's SH rest
+        lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "colors_kernels": c.lr_colors / 20.0,
+                    "bg_colors": c.lr_background})
     if phase.fits_head:
         for k in LATENT_KEYS:
             lrs[k] = c.lr_latent
