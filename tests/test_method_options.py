@@ -434,6 +434,8 @@ def test_refinement_moves_geometry_and_head_without_densifying(trained, tmp_path
     assert not torch.equal(a["means"], b["means"]) and not torch.equal(a["z_iso"], b["z_iso"])
     assert json.loads((ref / "run.json").read_text())["timings_s"]["refine"] > 0
     assert main(["train", str(scene), str(tmp_path / "bad"), "--refine-steps", "-1", "--quiet"]) == 2
+    with pytest.raises(UserError, match="refine_steps"):
+        preset("tiny", refine_steps=-1)
 
 
 def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):

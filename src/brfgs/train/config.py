@@ -243,8 +243,9 @@ class TrainConfig:
             raise UserError(f"decode must be one of {DECODE_ORDERS}, got {self.decode!r}", field="decode")
         if not 1 <= self.latent_dim <= 32:
             raise UserError(f"latent_dim must be in 1..32, got {self.latent_dim}", field="latent_dim")
-        if self.stage1_steps < 0 or self.stage2_steps < 0 or self.refine_steps < 0:
-            raise UserError("step counts must be >= 0", field="stage1_steps")
+        for name in ("stage1_steps", "stage2_steps", "refine_steps"):
+            if getattr(self, name) < 0:
+                raise UserError(f"step counts must be >= 0, got {getattr(self, name)}", field=name)
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         nonneg = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
