@@ -80,13 +80,16 @@ def stage1_colors(model: GaussianModel, cam: Camera, sun_dir: Tensor | None = No
     and when it has ``colors_kernels`` [N, 2, k], the kernel terms c_vol K_Ross + c_geo K_Li of eq. 12
     on the stage-1 bands (``sun_dir`` [3] unit, toward the sun)."""
     col = model["colors"]
+    if "colors_rest" not in model and "colors_kernels" not in model:
+        return col
+    omega_o = view_directions(model.means, cam.centre)  # [N, 3]
     if "colors_rest" in model:
         rest = model["colors_rest"]  # [N, s, k]
         degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
-        basis = sh_basis(degree, view_directions(model.means, cam.centre))[:, 1:]  # [N, s]
+        basis = sh_basis(degree, omega_o)[:, 1:]  # [N, s]
         col = col + (basis[:, :, None] * rest).sum(1)
     if "colors_kernels" in model:
-        kern = hybrid_kernels(None, sun_dir, view_directions(model.means, cam.centre), components=("vol", "geo"))
+        kern = hybrid_kernels(None, sun_dir, omega_o, components=("vol", "geo"))
         basis = torch.stack([kern["vol"], kern["geo"]], -1)  # [N, 2]
         col = col + (basis[:, :, None] * model["colors_kernels"]).sum(1)
     return col

@@ -63,6 +63,11 @@ def plan(variant: str, joint: bool, stage1_steps: int, stage2_steps: int,
     return phases + [(Phase.REFINE, refine_steps)] if refine_steps > 0 else phases
 
 
+def run_plan(cfg) -> list[tuple[Phase, int]]:
+    """:func:`plan` of a run's options ``cfg`` (a :class:`brfgs.train.config.TrainConfig`)."""
+    return plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)
+
+
 def next_phase(phases: list[tuple[Phase, int]], phase: Phase) -> Phase:
     """The phase after ``phase`` (DONE after the last)."""
     names = [p for p, _ in phases]

@@ -26,8 +26,10 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     c = cfg
     lrs: dict[str, float] = {}
     if phase.trains_geometry:  # the refinement: the rates stage 1 ended with, times refine_lr_scale
-        s = c.refine_lr_scale if phase == Phase.REFINE else 1.0
-        mean_lr = c.lr_means_final * extent_m if phase == Phase.REFINE else means_lr(c, step, steps, extent_m)
+        if phase == Phase.REFINE:
+            s, mean_lr = c.refine_lr_scale, c.lr_means_final * extent_m
+        else:
+            s, mean_lr = 1.0, means_lr(c, step, steps, extent_m)
         lrs.update({"means": s * mean_lr, "log_scales": s * c.lr_scales, "quats": s * c.lr_quats,
                     "opacity_logits": s * c.lr_opacity})
     if phase == Phase.STAGE1:  # the view-dependent terms (SH rest, kernels) at a twentieth, as 3DGS's SH rest

@@ -23,7 +23,7 @@ from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.train.config import TrainConfig
 from brfgs.train.dense_depth import FILE as DENSE_DEPTH_FILE, save_dense_depths
 from brfgs.train.images import TrainImages
-from brfgs.train.phases import plan
+from brfgs.train.phases import run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
 from brfgs.train.far_field import mark_far_field
@@ -174,6 +174,6 @@ def run_setup(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, pro
         state.timings["autoencoder"] = time.perf_counter() - t
     if cfg.variant == "cir" or cfg.joint:
         init_head(state, cfg, scene, images)
-    state.phase = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)[0][0]
+    state.phase = run_plan(cfg)[0][0]
     state.step = 0
     return images

@@ -40,7 +40,7 @@ from brfgs.train.config import TrainConfig, scaled_schedule
 from brfgs.train.distributed import Comm, check_identical, check_views_per_step, launch, reduce_gradients, shard
 from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
-from brfgs.train.phases import Phase, next_phase, plan
+from brfgs.train.phases import Phase, next_phase, run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.schedule import learning_rates, spec_regularisers
 from brfgs.train.setup import init_head, run_setup
@@ -75,7 +75,7 @@ class Trainer:
         self.from_stage1 = Path(from_stage1) if from_stage1 else None
         self.log = (log if self.comm.is_main else None) or (lambda *a, **k: None)
         self.state = TrainState(self.cfg)
-        self.phases = plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)
+        self.phases = run_plan(cfg)
         self.scene = None
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
@@ -143,8 +143,7 @@ class Trainer:
         given = self.cfg
         self.cfg = scaled_schedule(given, n_train)
         self.state.cfg = self.cfg
-        self.phases = plan(self.cfg.variant, self.cfg.joint, self.cfg.stage1_steps, self.cfg.stage2_steps,
-                           self.cfg.refine_steps)
+        self.phases = run_plan(self.cfg)
         self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
                          "scale": self.cfg.stage1_steps / given.stage1_steps if given.stage1_steps else 1.0,
                          "stage1_steps": self.cfg.stage1_steps, "stage2_steps": self.cfg.stage2_steps,
