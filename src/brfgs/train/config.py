@@ -197,8 +197,9 @@ class TrainConfig:
                           "points) or mvs (dense plane-sweep stereo of the training views, brfgs.init.mvs, its holes "
                           "filled by a 2.5-D surface through the dense points).")
     max_gaussians_per_px: float = _opt(3.0, "Cap densification at this many Gaussians per image pixel (0 = no cap).")
-    schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --stage2-steps, --densify-refine-stop and "
-                                   "--max-gaussians-per-px are given for: with n > this many training views all four "
+    schedule_ref_views: int = _opt(17, "Training views that --stage1-steps, --stage2-steps, --refine-steps, "
+                                   "--densify-refine-stop and --max-gaussians-per-px are given for: with n > this many "
+                                   "training views all five "
                                    "are multiplied by n / this (the same passes over the views, the same Gaussians per "
                                    "observed pixel); with fewer they stay as given. run.json records the values used. "
                                    "0 = always as given (docs/results.md, Session 13).")
