@@ -131,7 +131,8 @@ class TrainConfig:
                                  "(as 3DGS; measured worse on validation views, docs/method.md).")
     stage1_kernels: bool = _opt(False, "Stage-1 colours with the view dependence of eq. 12's volumetric and geometric "
                                 "kernels, c_iso + c_vol K_Ross + c_geo K_Li per stage-1 band, instead of none (a candidate: "
-                                "+0.08 to +0.32 dB on the forest and a testsite, docs/method.md).",
+                                "+0.25 dB over four of the five 49-view scenes, SH-3 on the same stage 1 gains too; "
+                                "docs/method.md).",
                                 "--stage1-kernels/--stage1-flat-colours")
     lr_normals: float = _opt(2e-3, "Adam learning rate of the learned shading normals.")
     lr_means: float = _opt(1.6e-4, "Initial learning rate of the means (x scene extent in m).")
