@@ -439,8 +439,9 @@ def test_refinement_moves_geometry_and_head_without_densifying(trained, tmp_path
 
 
 def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
-    """--stage1-kernels: a stage-1 colour is c_iso + c_vol K_Ross + c_geo K_Li (eq. 12 on the stage-1
-    bands), against the float64 MODIS kernels of brfgs.brdf.reference; a run trains them."""
+    """--stage1-kernels (the default): a stage-1 colour is c_iso + c_vol K_Ross + c_geo K_Li (eq. 12 on
+    the stage-1 bands), against the float64 MODIS kernels of brfgs.brdf.reference; a run trains them,
+    --stage1-flat-colours (the paper) does not have them."""
     from brfgs.brdf.reference import li_sparse_r_ref, ross_thick_ref
     from brfgs.brdf.geometry import view_directions
     from brfgs.model.features import stage1_colors
@@ -464,10 +465,20 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
     c = params["colors"].numpy().astype(np.float64)
     ck = params["colors_kernels"].numpy().astype(np.float64)
     np.testing.assert_allclose(got, c + kv[:, None] * ck[:, 0] + kg[:, None] * ck[:, 1], rtol=1e-4, atol=1e-5)
-    scene, _ = trained
-    out = tmp_path / "k1"
-    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "12", "--stage2-steps", "4",
-                 "--stage1-kernels", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
-    p = TrainedModel.load(out / "model.safetensors").gaussians.params
+
+    gm64 = GaussianModel({name: v.double() for name, v in params.items()}, "brf", 4, k)
+
+    def colours64(means, colors, kernels):  # float64: the gradients against finite differences
+        gm64.params.update(means=means, colors=colors, colors_kernels=kernels)
+        return stage1_colors(gm64, cam, sun.double())
+    leaves = [params[name].double().requires_grad_(True) for name in ("means", "colors", "colors_kernels")]
+    assert torch.autograd.gradcheck(colours64, leaves, eps=1e-6, atol=1e-6)
+    p = tm.gaussians.params  # the default (an addition since Session 35) trains them
     assert p["colors_kernels"].shape[1:] == (2, p["colors"].shape[1]) and p["colors_kernels"].abs().sum() > 0
+    scene, _ = trained
+    out = tmp_path / "flat"  # the paper's view-independent stage-1 colours
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "12", "--stage2-steps", "4",
+                 "--stage1-flat-colours", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
+    assert "colors_kernels" not in TrainedModel.load(out / "model.safetensors").gaussians.params
+    assert not preset("paper").stage1_kernels and not preset("paper-fast").stage1_kernels
 

@@ -94,23 +94,24 @@ def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
         train(scene, run, _cfg(), progress=False, log=None)
 
 
-def test_a_run_started_before_a_default_changed_resumes_with_its_own_method(scene, tmp_path):
-    """A config.json written before normal_prior_per_gaussian existed trained the blended form: resuming
-    it with today's default is refused naming the option, and resuming with the old form works."""
+@pytest.mark.parametrize("option", ["normal_prior_per_gaussian", "stage1_kernels"])
+def test_a_run_started_before_a_default_changed_resumes_with_its_own_method(scene, tmp_path, option):
+    """A config.json written before ``option`` existed trained its old value (False: the blended
+    depth-normal prior before Session 26, flat stage-1 colours before Session 33): resuming it with
+    today's default is refused naming the option, and resuming with the old value works."""
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        train(scene, run, _cfg(normal_prior_per_gaussian=False), progress=False,
-              callback=_interrupt_at(("stage1", 7)), log=None)
+        train(scene, run, _cfg(**{option: False}), progress=False, callback=_interrupt_at(("stage1", 7)), log=None)
     cfg = json.loads((run / "config.json").read_text())
-    del cfg["normal_prior_per_gaussian"]                     # as a run of Session 26 wrote it
+    del cfg[option]                                          # as a run of before the option wrote it
     (run / "config.json").write_text(json.dumps(cfg))
-    with pytest.raises(UserError, match="normal_prior_per_gaussian"):
+    with pytest.raises(UserError, match=option):
         train(scene, run, _cfg(), progress=False, log=None)
     (run / "config.json").write_text("{not json")
     with pytest.raises(UserError, match="unreadable run options"):
         train(scene, run, _cfg(), progress=False, log=None)
     (run / "config.json").write_text(json.dumps(cfg))
-    assert train(scene, run, _cfg(normal_prior_per_gaussian=False), progress=False, log=None).is_file()
+    assert train(scene, run, _cfg(**{option: False}), progress=False, log=None).is_file()
 
 
 def test_evaluate_gives_the_digits_of_training(scene, tmp_path):

@@ -23,7 +23,7 @@ from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.train.config import TrainConfig
 from brfgs.train.dense_depth import FILE as DENSE_DEPTH_FILE, save_dense_depths
 from brfgs.train.images import TrainImages
-from brfgs.train.phases import run_plan
+from brfgs.train.phases import Phase, run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
 from brfgs.train.far_field import mark_far_field
@@ -103,7 +103,7 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
     if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         k = gm["colors"].shape[1]
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
-    if cfg.stage1_kernels:  # stage-1 colours with the volumetric and geometric kernels' view dependence
+    if cfg.stage1_kernels and run_plan(cfg)[0][0] == Phase.STAGE1:  # stage-1 colours with eq. 12's kernels
         gm.params["colors_kernels"] = torch.zeros(gm.n, 2, gm["colors"].shape[1], requires_grad=True)
     state.densify = DensifyState(gm.n)
     bg = np.nanmean(init.colors, 0) if s1 == bands else gm["colors"].detach().mean(0).numpy()  # [C]
