@@ -239,6 +239,12 @@ def test_stage1_view_dependent_colours_train_and_load(scene, tmp_path):
     assert rest.shape == (lm.n_gaussians, 3, lm.gaussians["colors"].shape[1])
     assert float(rest.abs().max()) > 0  # learned from zero
     assert np.isfinite(render(lm, lm.cameras[0], backend="torch").cube).all()
+    # a joint run has no stage 1: neither extension of the stage-1 colours is created for it
+    joint = Trainer(scene, tmp_path / "joint", _cfg(stage1_steps=4, stage2_steps=2, stage1_sh_degree=1, joint=True),
+                    progress=False, log=None)
+    assert joint.cfg.stage1_kernels
+    params = TrainedModel.load(joint.run()).gaussians.params
+    assert "colors_rest" not in params and "colors_kernels" not in params
 
 
 def test_surface_priors_train_and_are_validated(scene, tmp_path):

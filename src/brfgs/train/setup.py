@@ -100,11 +100,12 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
                                                             backend=cfg.backend, antialiased=cfg.antialias,
                                                             supersample=cfg.supersample))
-    if cfg.stage1_sh_degree > 0:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
-        k = gm["colors"].shape[1]
+    has_stage1 = run_plan(cfg)[0][0] == Phase.STAGE1  # CIR and joint runs have no stage-1 colours to extend
+    k = gm["colors"].shape[1]
+    if cfg.stage1_sh_degree > 0 and has_stage1:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
         gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
-    if cfg.stage1_kernels and run_plan(cfg)[0][0] == Phase.STAGE1:  # stage-1 colours with eq. 12's kernels
-        gm.params["colors_kernels"] = torch.zeros(gm.n, 2, gm["colors"].shape[1], requires_grad=True)
+    if cfg.stage1_kernels and has_stage1:  # stage-1 colours with eq. 12's kernels
+        gm.params["colors_kernels"] = torch.zeros(gm.n, 2, k, requires_grad=True)
     state.densify = DensifyState(gm.n)
     bg = np.nanmean(init.colors, 0) if s1 == bands else gm["colors"].detach().mean(0).numpy()  # [C]
     state.extra = {"bg_colors": torch.as_tensor(bg, dtype=torch.float32).requires_grad_(True)}
