@@ -8,7 +8,7 @@ import torch
 
 from brfgs.analysis.metrics import sam, ssim
 from brfgs.spectral.autoencoder import spectral_angle_torch
-from brfgs.train.losses import masked_cos, masked_l1, masked_psnr, ssim_torch, stage2_loss
+from brfgs.train.losses import masked_cos, masked_l1, masked_psnr, ssim_torch, stage1_loss, stage2_loss
 
 
 def test_ssim_torch_matches_metric():
@@ -21,6 +21,25 @@ def test_ssim_torch_matches_metric():
     valid[:8, :8] = False
     got = ssim_torch(torch.from_numpy(x), torch.from_numpy(y), valid=torch.from_numpy(valid)).item()
     assert got == pytest.approx(ssim(x, y, valid), abs=1e-10)
+
+
+def test_stage1_loss_dssim_grayscale_and_per_band():
+    """Eq. 24: (1 − α) L1 + α (1 − SSIM), SSIM on the band-mean image (paper) or the mean over bands,
+    each image scaled by the target's valid maximum; checked against the float64 metric."""
+    rng = np.random.default_rng(1)
+    x = rng.random((24, 22, 3)) * np.array([0.05, 0.2, 0.5])  # dark, mid and bright bands
+    y = np.clip(x + 0.02 * rng.standard_normal(x.shape), 0, None)
+    valid = np.ones((24, 22), bool)
+    valid[:6, :6] = False
+    l1 = np.abs(x - y)[valid].mean()
+    gx, gy = x.mean(-1, keepdims=True), y.mean(-1, keepdims=True)
+    gray = 0.8 * l1 + 0.2 * (1 - ssim(gx / gy[valid].max(), gy / gy[valid].max(), valid))
+    mx = y[valid].max(0)
+    per_band = 0.8 * l1 + 0.2 * (1 - np.mean([ssim(x[..., [b]] / mx[b], y[..., [b]] / mx[b], valid) for b in range(3)]))
+    args = (torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(valid), 0.2)
+    assert stage1_loss(*args).item() == pytest.approx(gray, abs=1e-10)
+    assert stage1_loss(*args, per_band=True).item() == pytest.approx(per_band, abs=1e-10)
+    assert abs(per_band - gray) > 1e-3  # the dark band's structure counts in the per-band form
 
 
 def test_l1_cos_psnr_hand_values():

@@ -85,6 +85,9 @@ class TrainConfig:
     refine_lr_scale: float = _opt(1.0, "Geometry learning rates of the refinement, as a multiple of those stage 1 "
                                   "ended with.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
+    dssim_per_band: bool = _opt(False, "D-SSIM of eq. 24 as the mean over the stage-1 bands, each scaled by its "
+                                "maximum (3DGS's per-channel SSIM), instead of on the grayscale band mean (the paper).",
+                                "--dssim-per-band/--dssim-grayscale")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
     lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
                                 "not in the paper).")

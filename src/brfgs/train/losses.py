@@ -103,19 +103,21 @@ def coverage_loss(
     return (1.0 - alpha)[valid].mean()
 
 
-def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, alpha: float) -> torch.Tensor:
-    """(1 - alpha) L1 + alpha D-SSIM (eq. 24); D-SSIM on the grayscale (band mean) images.
+def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, alpha: float,
+                per_band: bool = False) -> torch.Tensor:
+    """(1 - alpha) L1 + alpha D-SSIM (eq. 24) of [H, W, k] images; D-SSIM on the grayscale (band
+    mean) images as the paper, or with ``per_band`` the mean D-SSIM of the k bands (3DGS's per-channel
+    SSIM; not in the paper).
 
-    D-SSIM = 1 - SSIM; the grayscale image is scaled by its valid maximum so SSIM's
-    constants see a [0, 1] range.
+    D-SSIM = 1 - SSIM; each image compared (the grayscale one, or each band) is scaled by the
+    target's valid maximum so SSIM's constants see a [0, 1] range.
     """
     l1 = masked_l1(pred, target, valid)
     if alpha <= 0 or min(pred.shape[0], pred.shape[1]) < 11:
         return l1
     t = fill_invalid(pred, target, valid)
-    gp = pred.mean(-1, keepdim=True)
-    gt = t.mean(-1, keepdim=True)
-    scale = gt.detach()[valid].max().clamp_min(1e-6) if valid.any() else torch.tensor(1.0)
+    gp, gt = (pred, t) if per_band else (pred.mean(-1, keepdim=True), t.mean(-1, keepdim=True))  # [H, W, k or 1]
+    scale = gt.detach()[valid].amax(0).clamp_min(1e-6) if valid.any() else torch.ones(gt.shape[-1])  # [k or 1]
     dssim = 1 - ssim_torch(gp / scale, gt / scale, valid=valid)
     return (1 - alpha) * l1 + alpha * dssim
 

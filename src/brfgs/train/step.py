@@ -241,7 +241,7 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
         loss = loss + cfg.lambda_spectral_tv * _spectral_tv(lambda q: flat[q], batch.target, batch.valid, idx, flat)
     if phase == Phase.JOINT and cfg.alpha_dssim > 0:
         sel = state.stage1_bands()
-        loss = loss + cfg.alpha_dssim * (stage1_loss(pred[..., sel], batch.target[..., sel], batch.valid, 1.0))
+        loss = loss + cfg.alpha_dssim * (stage1_loss(pred[..., sel], batch.target[..., sel], batch.valid, 1.0, cfg.dssim_per_band))
     return _plus(loss, greg), masked_psnr(pred, batch.target, batch.valid)
 
 
@@ -318,7 +318,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
         pred = composite_background(image, out.alpha, state.extra["bg_colors"])
         pred, target, valid = area_pool(pred, batch.target, batch.valid,
                                         coarse_factor_now(c, phase, state.step, phase_steps))
-        loss = stage1_loss(pred, target, valid, c.alpha_dssim)
+        loss = stage1_loss(pred, target, valid, c.alpha_dssim, c.dssim_per_band)
         return StepResult(_plus(loss, greg), masked_psnr(pred, target, valid), out)
     if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in state.gaussians:
         greg = c.lambda_normal_smooth * normal_smoothness_loss(state.gaussians["normals"], nbrs)
