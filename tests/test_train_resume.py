@@ -94,11 +94,12 @@ def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
         train(scene, run, _cfg(), progress=False, log=None)
 
 
-@pytest.mark.parametrize("option", ["normal_prior_per_gaussian", "stage1_kernels"])
+@pytest.mark.parametrize("option", ["normal_prior_per_gaussian", "stage1_kernels", "dssim_per_band"])
 def test_a_run_started_before_a_default_changed_resumes_with_its_own_method(scene, tmp_path, option):
     """A config.json written before ``option`` existed trained its old value (False: the blended
-    depth-normal prior before Session 26, flat stage-1 colours before Session 33): resuming it with
-    today's default is refused naming the option, and resuming with the old value works."""
+    depth-normal prior before Session 26, flat stage-1 colours before Session 33, the grayscale D-SSIM
+    before Session 36): resuming it with today's default is refused naming the option, and resuming
+    with the old value works."""
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         train(scene, run, _cfg(**{option: False}), progress=False, callback=_interrupt_at(("stage1", 7)), log=None)

@@ -31,7 +31,7 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 # Options whose default changed after they were added: a run folder's config.json written before the
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
 BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False,
-                       "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False}
+                       "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False, "dssim_per_band": False}
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -85,9 +85,9 @@ class TrainConfig:
     refine_lr_scale: float = _opt(1.0, "Geometry learning rates of the refinement, as a multiple of those stage 1 "
                                   "ended with.")
     alpha_dssim: float = _opt(0.2, "alpha of eq. 24 (weight of D-SSIM).")
-    dssim_per_band: bool = _opt(False, "D-SSIM of eq. 24 as the mean over the stage-1 bands, each scaled by its "
-                                "maximum (3DGS's per-channel SSIM), instead of on the grayscale band mean (the paper).",
-                                "--dssim-per-band/--dssim-grayscale")
+    dssim_per_band: bool = _opt(True, "D-SSIM of eq. 24 as the mean over the stage-1 bands, each scaled by its "
+                                "maximum (3DGS's per-channel SSIM; not in the paper), or on the grayscale band mean "
+                                "(--dssim-grayscale: the paper).", "--dssim-per-band/--dssim-grayscale")
     beta_cos: float = _opt(0.5, "beta of eq. 25 (weight of the cosine loss).")
     lambda_normal: float = _opt(0.05, "Weight of the depth-normal consistency loss while geometry trains (0 = off; "
                                 "not in the paper).")
@@ -411,6 +411,9 @@ ADDITIONS: dict[str, Addition] = {
     "stage1_kernels": Addition(dict(stage1_kernels=False), 1, "the hotspot and the crowns' shadowing change a "
                                "surface's brightness with the view; with view-independent stage-1 colours only the "
                                "geometry can follow that, with eq. 12's kernels the colours can"),
+    "dssim_per_band": Addition(dict(dssim_per_band=False), 1, "the grayscale band mean hides edges between "
+                               "surfaces that differ in one band only (grass and soil in the NIR, red paint in "
+                               "the red); the D-SSIM of each stage-1 band sees them, as 3DGS's per-channel SSIM"),
 }
 
 
