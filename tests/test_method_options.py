@@ -113,6 +113,9 @@ def test_split_rules_and_old_runs(tmp_path):
     assert written["split_rule"] == "spread"
     old.write_text(json.dumps({k: v for k, v in written.items() if k != "split_rule"}))
     assert TrainConfig.from_run_config(old).split_rule == "random"
+    # before Session 37 stage2_rays also sized the joint phase's patches: an old folder keeps them
+    old.write_text(json.dumps({**{k: v for k, v in written.items() if k != "patch_rays"}, "stage2_rays": 4096}))
+    assert (TrainConfig.from_run_config(old).patch_rays, TrainConfig.from_run_config(old).stage2_rays) == (4096, 4096)
     with pytest.raises(UserError, match="split_rule"):
         TrainConfig(split_rule="nearest").validate()
     with pytest.raises(UserError, match="split rule"):

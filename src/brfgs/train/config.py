@@ -209,8 +209,11 @@ class TrainConfig:
                                    "0 = always as given (docs/results.md, Session 13).")
     densify: DensifyConfig = _opt(DensifyConfig(), "Adaptive density control (brfgs.model.densify).")
     patch_px: int = _opt(256, "Train on random patches of this size when an image is larger (0 = whole images).")
-    stage2_rays: int = _opt(2048, "Stage 2 decodes and scores this many random pixels per view (0 = all); the joint "
-                            "phase uses square patches of this many pixels.")
+    stage2_rays: int = _opt(0, "Stage 2 (--decode pixel) decodes and scores this many random pixels of each rendered "
+                            "view or patch per step (0 = all: since Session 37; 2048 before, which at 128 x 128 scored "
+                            "each pixel ~5 times in stage 2 against ~22 at 64 x 64).")
+    patch_rays: int = _opt(2048, "The joint phase, and stage 2 with --decode gaussian, train on square patches of about "
+                           "this many pixels, every one scored (0 = whole views, or --patch-px patches).")
     views_per_step: int = _opt(1, "Training views per step (the global batch; gradients are those of the mean loss, "
                                "each view counts once in the densification statistics). Data-parallel runs "
                                "(--nproc N, torchrun --distributed) share each step's views out: a multiple of N.")
@@ -255,7 +258,7 @@ class TrainConfig:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         nonneg = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",
                   "lambda_alpha", "lambda_sparse_depth", "lambda_dense_depth", "lambda_multiview", "lambda_spectral_tv",
-                  "wd_spec", "spec_shrink", "normal_edge_rel", "refine_lr_scale")
+                  "wd_spec", "spec_shrink", "normal_edge_rel", "refine_lr_scale", "stage2_rays", "patch_rays", "patch_px")
         for name in nonneg:
             if getattr(self, name) < 0:
                 raise UserError(f"{name} must be >= 0, got {getattr(self, name)}", field=name)
@@ -341,6 +344,8 @@ class TrainConfig:
             raise UserError(f"unreadable run options ({exc})", file=str(path)) from None
         if not isinstance(written, dict):
             raise UserError("run options must be a JSON object", file=str(path), field="config")
+        if "patch_rays" not in written and isinstance(written.get("stage2_rays"), int):
+            written["patch_rays"] = written["stage2_rays"]  # one option set both before Session 37
         return cls.from_dict({**BEFORE_OPTION, **written}, source=str(path))
 
     def changed_options(self, other: "TrainConfig", ignore: tuple[str, ...] = ()) -> list[str]:
@@ -447,7 +452,7 @@ PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_00
                             stage2_steps=30_000,
                             densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
                                          max_gaussians=3_000_000),
-                            checkpoint_every=2000, patch_px=0, stage2_rays=0, max_gaussians_per_px=0.0,
+                            checkpoint_every=2000, patch_px=0, stage2_rays=0, patch_rays=0, max_gaussians_per_px=0.0,
                             schedule_ref_views=0)
 
 # ``fine``: each pixel the mean of 2 x 2 sub-pixel samples (from half of the geometry phase on) and

@@ -53,7 +53,7 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
     """Next training view (epoch-wise permutation) and an optional patch window.
 
     Patches of ``patch_px`` for large images; in the joint phase, and in stage 2 with decode
-    order "gaussian", square patches of about ``stage2_rays`` pixels (every pixel is scored there:
+    order "gaussian", square patches of about ``patch_rays`` pixels (every pixel is scored there:
     for the D-SSIM term, or because the spectra are blended, not decoded per pixel). The
     refinement scores whole views, as stage 1 does: a patch smaller than the view would train the
     view's border less often than its centre.
@@ -62,8 +62,8 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
         state.perm = torch.randperm(len(train_indices), generator=state.gen).tolist()
     i = train_indices[state.perm.pop()]
     P = cfg.patch_px
-    if cfg.stage2_rays > 0 and (phase == Phase.JOINT or (phase == Phase.STAGE2 and cfg.decode == "gaussian")):
-        side = max(int(math.sqrt(cfg.stage2_rays)), 16)
+    if cfg.patch_rays > 0 and (phase == Phase.JOINT or (phase == Phase.STAGE2 and cfg.decode == "gaussian")):
+        side = max(int(math.sqrt(cfg.patch_rays)), 16)
         P = min(P, side) if P > 0 else side
     if P > 0 and width * height > P * P:
         pw, ph = min(P, width), min(P, height)
