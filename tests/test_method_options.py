@@ -485,3 +485,28 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
     assert "colors_kernels" not in TrainedModel.load(out / "model.safetensors").gaussians.params
     assert not preset("paper").stage1_kernels and not preset("paper-fast").stage1_kernels
 
+
+
+def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():
+    """Stage 2 (pixel decode) renders the whole 64 x 64 view whatever ``stage2_rays`` is (it samples
+    pixels after rendering); the joint phase and stage 2 with --decode gaussian render square patches
+    of about ``patch_rays`` pixels (side floor(sqrt(patch_rays)), at least 16), and none at 0."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from brfgs.train.phases import Phase
+    from brfgs.train.step import pick_view
+
+    def window(phase, **cfg):
+        st = SimpleNamespace(perm=[], gen=torch.Generator().manual_seed(0))
+        return pick_view(st, [0, 1, 2], 64, 64, TrainConfig(**cfg), phase)[1]
+
+    assert TrainConfig().stage2_rays == 0 and TrainConfig().patch_rays == 2048
+    assert window(Phase.STAGE2) is None and window(Phase.STAGE2, stage2_rays=2048) is None
+    assert window(Phase.JOINT)[2:] == (45, 45)
+    assert window(Phase.STAGE2, decode="gaussian", patch_rays=400)[2:] == (20, 20)
+    assert window(Phase.JOINT, patch_rays=100)[2:] == (16, 16)
+    assert window(Phase.JOINT, patch_rays=0) is None
+    with pytest.raises(UserError, match="patch_rays"):
+        TrainConfig(patch_rays=-1).validate()
