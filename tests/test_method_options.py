@@ -115,7 +115,8 @@ def test_split_rules_and_old_runs(tmp_path):
     assert TrainConfig.from_run_config(old).split_rule == "random"
     # before Session 37 stage2_rays also sized the joint phase's patches: an old folder keeps them
     old.write_text(json.dumps({**{k: v for k, v in written.items() if k != "patch_rays"}, "stage2_rays": 4096}))
-    assert (TrainConfig.from_run_config(old).patch_rays, TrainConfig.from_run_config(old).stage2_rays) == (4096, 4096)
+    back = TrainConfig.from_run_config(old)
+    assert (back.patch_rays, back.stage2_rays) == (4096, 4096)
     with pytest.raises(UserError, match="split_rule"):
         TrainConfig(split_rule="nearest").validate()
     with pytest.raises(UserError, match="split rule"):
@@ -484,7 +485,6 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
                  "--stage1-flat-colours", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
     assert "colors_kernels" not in TrainedModel.load(out / "model.safetensors").gaussians.params
     assert not preset("paper").stage1_kernels and not preset("paper-fast").stage1_kernels
-
 
 
 def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():

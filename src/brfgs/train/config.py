@@ -32,6 +32,8 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
 BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False,
                        "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False, "dssim_per_band": False}
+# Options that an older run folder set through another one: it reads back with that one's value.
+BEFORE_OPTION_FROM: dict = {"patch_rays": "stage2_rays"}  # one option sized both before Session 37
 
 
 def _opt(default, help: str, flag: str | None = None):
@@ -336,17 +338,16 @@ class TrainConfig:
     @classmethod
     def from_run_config(cls, path) -> "TrainConfig":
         """The options a run folder's config.json (``path``) trained with: as :meth:`from_dict`, but an
-        option the file predates takes its value of then (:data:`BEFORE_OPTION`) where the default
-        changed since, else today's default."""
+        option the file predates takes its value of then (:data:`BEFORE_OPTION`, or the option that set
+        it then, :data:`BEFORE_OPTION_FROM`) where the default changed since, else today's default."""
         try:
             written = json.loads(Path(path).read_text())
         except (OSError, ValueError) as exc:
             raise UserError(f"unreadable run options ({exc})", file=str(path)) from None
         if not isinstance(written, dict):
             raise UserError("run options must be a JSON object", file=str(path), field="config")
-        if "patch_rays" not in written and isinstance(written.get("stage2_rays"), int):
-            written["patch_rays"] = written["stage2_rays"]  # one option set both before Session 37
-        return cls.from_dict({**BEFORE_OPTION, **written}, source=str(path))
+        derived = {k: written[src] for k, src in BEFORE_OPTION_FROM.items() if k not in written and src in written}
+        return cls.from_dict({**BEFORE_OPTION, **derived, **written}, source=str(path))
 
     def changed_options(self, other: "TrainConfig", ignore: tuple[str, ...] = ()) -> list[str]:
         """Names of the options (as config.json writes them) whose values differ from ``other``'s."""
