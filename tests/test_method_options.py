@@ -123,6 +123,22 @@ def test_split_rules_and_old_runs(tmp_path):
         read_scene(make_plane_scene(tmp_path / "s", w=8, h=6, n_bands=4, n_views=13), split_rule="nearest")
 
 
+def test_config_file_predating_options_reruns_with_their_values_of_then(tmp_path):
+    """``brfgs train --config RUN/config.json`` reads a config.json written before an option existed as
+    the run folder does: the option takes its value of then, not today's default; a full file is kept."""
+    written = json.loads(TrainConfig().to_json())
+    old = tmp_path / "config.json"
+    gone = {"dssim_per_band", "stage1_kernels", "patch_rays"}
+    old.write_text(json.dumps({**{k: v for k, v in written.items() if k not in gone}, "stage2_rays": 4096}))
+    cfg = build_config({}, old)
+    assert (cfg.dssim_per_band, cfg.stage1_kernels, cfg.patch_rays, cfg.stage2_rays) == (False, False, 4096, 4096)
+    assert cfg == TrainConfig.from_run_config(old)
+    cfg = build_config({("patch_rays",): 512}, old)  # the command line still overrides the file
+    assert (cfg.patch_rays, cfg.stage2_rays) == (512, 4096)
+    old.write_text(TrainConfig().to_json())
+    assert build_config({}, old) == TrainConfig()
+
+
 def test_nearest_view_angle_against_the_spherical_law_of_cosines():
     """Angles to the nearest training view from (zenith, azimuth) pairs, against a float64 loop over the
     spherical law of cosines (an independent formula: no direction vectors)."""

@@ -28,7 +28,7 @@ def build_config(options: dict, config_file: Path | None = None) -> TrainConfig:
     elif name is not None:
         raise UserError("give either --preset or --config (a config file holds every option)", field="--preset")
     else:
-        base = TrainConfig.from_dict(read_config_file(config_file), source=str(config_file))
+        base = TrainConfig.from_written(read_config_file(config_file), source=str(config_file))
     try:
         return apply_options(base, options).validate()
     except TypeError as exc:  # a value of the wrong type in the file slipped through
@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         scene: Path = typer.Argument(..., help="Scene folder (transforms.json + images/)."),
         out: Path = typer.Argument(..., help="Run folder (created; an unfinished run there is resumed)."),
         config: Path = typer.Option(None, "--config", help="A run's config.json: train with exactly its options "
-                                    "(options given here override the file)."),
+                                    "(options given here override the file; an option the file predates takes its value of then)."),
         from_stage1: Path = typer.Option(None, "--from-stage1", help="Start stage 2 from another run's "
                                          "checkpoints/stage1.safetensors."),
         evaluate: bool = typer.Option(True, "--evaluate/--no-evaluate", help="Evaluate the test views after training."),

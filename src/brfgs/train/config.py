@@ -346,8 +346,14 @@ class TrainConfig:
             raise UserError(f"unreadable run options ({exc})", file=str(path)) from None
         if not isinstance(written, dict):
             raise UserError("run options must be a JSON object", file=str(path), field="config")
+        return cls.from_written(written, source=str(path))
+
+    @classmethod
+    def from_written(cls, written: dict, source: str | None = None) -> "TrainConfig":
+        """:meth:`from_dict` of a run's written options (config.json), an option they predate taking its
+        value of then (:data:`BEFORE_OPTION`, :data:`BEFORE_OPTION_FROM`), else today's default."""
         derived = {k: written[src] for k, src in BEFORE_OPTION_FROM.items() if k not in written and src in written}
-        return cls.from_dict({**BEFORE_OPTION, **derived, **written}, source=str(path))
+        return cls.from_dict({**BEFORE_OPTION, **derived, **written}, source=source)
 
     def changed_options(self, other: "TrainConfig", ignore: tuple[str, ...] = ()) -> list[str]:
         """Names of the options (as config.json writes them) whose values differ from ``other``'s."""
