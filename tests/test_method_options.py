@@ -123,15 +123,44 @@ def test_split_rules_and_old_runs(tmp_path):
         read_scene(make_plane_scene(tmp_path / "s", w=8, h=6, n_bands=4, n_views=13), split_rule="nearest")
 
 
+def test_head_learning_rates_decay_log_linearly_over_the_phase():
+    """--lr-head-final F: every head rate goes from its start to F x it, log-linearly in the step (a
+    float64 reference: start x F**(step/steps)), from --head-lr-decay-from of the phase on; the
+    geometry's rates in the joint phase do not move with it; F = 1 gives the constant rates exactly."""
+    from brfgs.train.phases import Phase
+    from brfgs.train.schedule import learning_rates
+
+    const, cfg = preset("fast", lr_head_final=1.0), preset("fast", lr_head_final=0.1, head_lr_decay_from=0.0)
+    assert (preset("fast").lr_head_final, preset("fast").head_lr_decay_from) == (0.1, 0.75)  # since Session 38
+    for phase, steps in ((Phase.STAGE2, 40), (Phase.JOINT, 40)):
+        start = learning_rates(const, phase, 0, steps, 10.0)
+        for step in (0, 10, 40):
+            got, ref = learning_rates(cfg, phase, step, steps, 10.0), learning_rates(const, phase, step, steps, 10.0)
+            assert got.keys() == ref.keys() and {"z_iso", "z_spec", "bg_latent"} <= set(got)
+            for k in got:
+                want = start[k] * 0.1 ** (step / steps) if k not in ("means", "log_scales", "quats",
+                                                                     "opacity_logits") else ref[k]
+                assert got[k] == pytest.approx(want, rel=1e-12), (phase, step, k)
+        assert learning_rates(const, phase, 40, steps, 10.0)["z_spec"] == const.lr_spec
+    held = preset("fast", lr_head_final=0.1, head_lr_decay_from=0.5)  # constant for half the phase, then decaying
+    for step, factor in ((0, 1.0), (20, 1.0), (30, 0.1 ** 0.5), (40, 0.1)):
+        assert learning_rates(held, Phase.STAGE2, step, 40, 10.0)["z_iso"] == pytest.approx(held.lr_latent * factor)
+    with pytest.raises(UserError, match="lr_head_final"):
+        preset("fast", lr_head_final=0.0)
+    with pytest.raises(UserError, match="head_lr_decay_from"):
+        preset("fast", head_lr_decay_from=1.0)
+
+
 def test_config_file_predating_options_reruns_with_their_values_of_then(tmp_path):
     """``brfgs train --config RUN/config.json`` reads a config.json written before an option existed as
     the run folder does: the option takes its value of then, not today's default; a full file is kept."""
     written = json.loads(TrainConfig().to_json())
     old = tmp_path / "config.json"
-    gone = {"dssim_per_band", "stage1_kernels", "patch_rays"}
+    gone = {"dssim_per_band", "stage1_kernels", "patch_rays", "lr_head_final", "head_lr_decay_from"}
     old.write_text(json.dumps({**{k: v for k, v in written.items() if k not in gone}, "stage2_rays": 4096}))
     cfg = build_config({}, old)
     assert (cfg.dssim_per_band, cfg.stage1_kernels, cfg.patch_rays, cfg.stage2_rays) == (False, False, 4096, 4096)
+    assert (cfg.lr_head_final, cfg.head_lr_decay_from) == (1.0, 0.0)  # constant head rates before Session 38
     assert cfg == TrainConfig.from_run_config(old)
     cfg = build_config({("patch_rays",): 512}, old)  # the command line still overrides the file
     assert (cfg.patch_rays, cfg.stage2_rays) == (512, 4096)

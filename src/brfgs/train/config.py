@@ -31,7 +31,8 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 # Options whose default changed after they were added: a run folder's config.json written before the
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
 BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False,
-                       "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False, "dssim_per_band": False}
+                       "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False, "dssim_per_band": False,
+                       "lr_head_final": 1.0, "head_lr_decay_from": 0.0}
 # Options that an older run folder set through another one: it reads back with that one's value.
 BEFORE_OPTION_FROM: dict = {"patch_rays": "stage2_rays"}  # one option sized both before Session 37
 
@@ -155,6 +156,13 @@ class TrainConfig:
     spec_shrink: float = _opt(0.0, "Soft threshold of z_spec after each step, in units of lr_spec (the proximal step "
                               "of an L1 penalty): a specular latent grows only where its Adam steps keep one "
                               "direction, as at a glint, and does not drift elsewhere (0 = off).")
+    lr_head_final: float = _opt(0.1, "The appearance head's learning rates (latents, SH, roughness, normals, learned "
+                                "background, irradiance, neural head, decoder) at the end of a phase that fits it "
+                                "(stage 2, joint), as a multiple of their starting rates: log-linear from "
+                                "--head-lr-decay-from of the phase on, as 3DGS decays its means' rate (1 = constant "
+                                "rates, as before Session 38).")
+    head_lr_decay_from: float = _opt(0.75, "Fraction of that phase after which the head's rates decay towards "
+                                     "--lr-head-final (0 = from its first step).")
     lr_rho: float = _opt(1e-2, "Learning rate of the roughness.")
     lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
     lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")
@@ -256,6 +264,9 @@ class TrainConfig:
         for name in ("stage1_steps", "stage2_steps", "refine_steps"):
             if getattr(self, name) < 0:
                 raise UserError(f"step counts must be >= 0, got {getattr(self, name)}", field=name)
+        if not 0 <= self.head_lr_decay_from < 1:
+            raise UserError(f"head_lr_decay_from must be in [0, 1), got {self.head_lr_decay_from}",
+                            field="head_lr_decay_from")
         if not 0 <= self.alpha_dssim <= 1 or not 0 <= self.beta_cos <= 1:
             raise UserError("alpha_dssim and beta_cos must be in [0, 1]", field="alpha_dssim")
         nonneg = ("lambda_normal", "lambda_flat", "lambda_normal_smooth", "lambda_depth_conc", "lambda_depth_smooth",

@@ -17,6 +17,15 @@ def means_lr(cfg: TrainConfig, step: int, steps: int, extent_m: float) -> float:
     return math.exp((1 - frac) * math.log(cfg.lr_means * extent_m) + frac * math.log(cfg.lr_means_final * extent_m))
 
 
+def head_lr_decay(cfg: TrainConfig, step: int, steps: int) -> float:
+    """Factor on the head's learning rates at ``step`` of a phase of ``steps``: 1 until
+    ``cfg.head_lr_decay_from`` of the phase, then log-linear to ``cfg.lr_head_final`` at its end (1
+    throughout when that is 1)."""
+    start = cfg.head_lr_decay_from
+    frac = min(max((step / max(steps, 1) - start) / (1.0 - start), 0.0), 1.0)
+    return math.exp(frac * math.log(cfg.lr_head_final))
+
+
 def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent_m: float,
                    neural_names=(), decoder_names=()) -> dict[str, float]:
     """{tensor name: learning rate} of every tensor the phase optimises (absent = frozen).
@@ -36,6 +45,7 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
         lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "colors_kernels": c.lr_colors / 20.0,
                     "bg_colors": c.lr_background})
     if phase.fits_head:
+        geometry = set(lrs)
         for k in LATENT_KEYS:
             lrs[k] = c.lr_latent
         lrs["z_spec"] = c.lr_spec
@@ -48,6 +58,8 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
         if c.finetune_decoder:
             for k in decoder_names:
                 lrs["decoder." + k] = c.lr_decoder
+        decay = head_lr_decay(c, step, steps)
+        lrs = {k: v * decay if k not in geometry else v for k, v in lrs.items()}
     if phase == Phase.CIR:
         lrs.update({"sh": c.lr_colors, "bg_colors": c.lr_background})
     if not c.learn_background:  # fixed at its initial value (the training images' mean)
