@@ -156,13 +156,11 @@ class TrainConfig:
     spec_shrink: float = _opt(0.0, "Soft threshold of z_spec after each step, in units of lr_spec (the proximal step "
                               "of an L1 penalty): a specular latent grows only where its Adam steps keep one "
                               "direction, as at a glint, and does not drift elsewhere (0 = off).")
-    lr_head_final: float = _opt(0.1, "The appearance head's learning rates (latents, SH, roughness, normals, learned "
-                                "background, irradiance, neural head, decoder) at the end of a phase that fits it "
-                                "(stage 2, joint), as a multiple of their starting rates: log-linear from "
-                                "--head-lr-decay-from of the phase on, as 3DGS decays its means' rate (1 = constant "
-                                "rates, as before Session 38).")
-    head_lr_decay_from: float = _opt(0.75, "Fraction of that phase after which the head's rates decay towards "
-                                     "--lr-head-final (0 = from its first step).")
+    lr_head_final: float = _opt(0.1, "The appearance head's learning rates at the end of a phase that fits it (stage "
+                                "2, joint), as a multiple of their starting rates: log-linear from --head-lr-decay-"
+                                "from of the phase on, as 3DGS decays its means' rate (1 = constant, before Session 38).")
+    head_lr_decay_from: float = _opt(0.75, "Fraction of that phase after which the head's rates decay (0 = from its "
+                                     "first step).")
     lr_rho: float = _opt(1e-2, "Learning rate of the roughness.")
     lr_neural: float = _opt(2e-3, "Learning rate of the neural head's MLP.")
     lr_decoder: float = _opt(1e-4, "Learning rate of the decoder when it is fine-tuned.")
