@@ -50,7 +50,8 @@ def register(app: typer.Typer) -> None:
         scene: Path = typer.Argument(..., help="Scene folder (transforms.json + images/)."),
         out: Path = typer.Argument(..., help="Run folder (created; an unfinished run there is resumed)."),
         config: Path = typer.Option(None, "--config", help="A run's config.json: train with exactly its options "
-                                    "(options given here override the file; an option the file predates takes its value of then)."),
+                                    "(options given here override the file; an option the file predates takes "
+                                    "its value of then)."),
         from_stage1: Path = typer.Option(None, "--from-stage1", help="Start stage 2 from another run's "
                                          "checkpoints/stage1.safetensors."),
         evaluate: bool = typer.Option(True, "--evaluate/--no-evaluate", help="Evaluate the test views after training."),

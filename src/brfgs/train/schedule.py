@@ -44,22 +44,15 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     if phase == Phase.STAGE1:  # the view-dependent terms (SH rest, kernels) at a twentieth, as 3DGS's SH rest
         lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "colors_kernels": c.lr_colors / 20.0,
                     "bg_colors": c.lr_background})
-    if phase.fits_head:
-        geometry = set(lrs)
-        for k in LATENT_KEYS:
-            lrs[k] = c.lr_latent
-        lrs["z_spec"] = c.lr_spec
-        lrs["rho_raw"] = c.lr_rho
-        lrs["normals"] = c.lr_normals
-        lrs["bg_latent"] = c.lr_background
-        lrs["log_irradiance"] = c.lr_irradiance
-        for k in neural_names:
-            lrs["neural." + k] = c.lr_neural
+    if phase.fits_head:  # the head's rates, all scaled by the decay of the phase
+        head = {k: c.lr_latent for k in LATENT_KEYS}
+        head.update({"z_spec": c.lr_spec, "rho_raw": c.lr_rho, "normals": c.lr_normals, "bg_latent": c.lr_background,
+                     "log_irradiance": c.lr_irradiance})
+        head.update({"neural." + k: c.lr_neural for k in neural_names})
         if c.finetune_decoder:
-            for k in decoder_names:
-                lrs["decoder." + k] = c.lr_decoder
+            head.update({"decoder." + k: c.lr_decoder for k in decoder_names})
         decay = head_lr_decay(c, step, steps)
-        lrs = {k: v * decay if k not in geometry else v for k, v in lrs.items()}
+        lrs.update({k: v * decay for k, v in head.items()})
     if phase == Phase.CIR:
         lrs.update({"sh": c.lr_colors, "bg_colors": c.lr_background})
     if not c.learn_background:  # fixed at its initial value (the training images' mean)
