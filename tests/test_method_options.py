@@ -113,6 +113,9 @@ def test_split_rules_and_old_runs(tmp_path):
     assert written["split_rule"] == "spread"
     old.write_text(json.dumps({k: v for k, v in written.items() if k != "split_rule"}))
     assert TrainConfig.from_run_config(old).split_rule == "random"
+    # until Session 41 the joint phase trained on 2,048-pixel patches: options written without it keep them
+    old.write_text(json.dumps({k: v for k, v in written.items() if k not in ("patch_rays", "stage2_rays")}))
+    assert TrainConfig.from_run_config(old).patch_rays == 2048
     # before Session 37 stage2_rays also sized the joint phase's patches: an old folder keeps them
     old.write_text(json.dumps({**{k: v for k, v in written.items() if k != "patch_rays"}, "stage2_rays": 4096}))
     back = TrainConfig.from_run_config(old)
@@ -535,7 +538,8 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
 def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():
     """Stage 2 (pixel decode) renders the whole 64 x 64 view whatever ``stage2_rays`` is (it samples
     pixels after rendering); the joint phase and stage 2 with --decode gaussian render square patches
-    of about ``patch_rays`` pixels (side floor(sqrt(patch_rays)), at least 16), and none at 0."""
+    of about ``patch_rays`` pixels (side floor(sqrt(patch_rays)), at least 16), and none at 0, the default
+    since Session 41 (whole views, or --patch-px patches of a larger image, as stage 1 and stage 2)."""
     from types import SimpleNamespace
 
     import torch
@@ -547,9 +551,10 @@ def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():
         st = SimpleNamespace(perm=[], gen=torch.Generator().manual_seed(0))
         return pick_view(st, [0, 1, 2], 64, 64, TrainConfig(**cfg), phase)[1]
 
-    assert TrainConfig().stage2_rays == 0 and TrainConfig().patch_rays == 2048
+    assert TrainConfig().stage2_rays == 0 and TrainConfig().patch_rays == 0
     assert window(Phase.STAGE2) is None and window(Phase.STAGE2, stage2_rays=2048) is None
-    assert window(Phase.JOINT)[2:] == (45, 45)
+    assert window(Phase.JOINT) is None and window(Phase.STAGE2, decode="gaussian") is None
+    assert window(Phase.JOINT, patch_rays=2048)[2:] == (45, 45)
     assert window(Phase.STAGE2, decode="gaussian", patch_rays=400)[2:] == (20, 20)
     assert window(Phase.JOINT, patch_rays=100)[2:] == (16, 16)
     assert window(Phase.JOINT, patch_rays=0) is None

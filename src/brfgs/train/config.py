@@ -32,7 +32,7 @@ MAX_COARSE_LEVELS = 4  # --coarse-levels: the first blur is at most 16 x 16 pixe
 # option existed trained with the value here (brfgs.train.run_folder compares a resumed run with it).
 BEFORE_OPTION: dict = {"normal_prior_moves_depth": True, "normal_prior_per_gaussian": False,
                        "split_rule": SPLIT_RULE_BEFORE, "stage1_kernels": False, "dssim_per_band": False,
-                       "lr_head_final": 1.0, "head_lr_decay_from": 0.0}
+                       "lr_head_final": 1.0, "head_lr_decay_from": 0.0, "patch_rays": 2048}
 # Options that an older run folder set through another one: it reads back with that one's value.
 BEFORE_OPTION_FROM: dict = {"patch_rays": "stage2_rays"}  # one option sized both before Session 37
 
@@ -220,8 +220,8 @@ class TrainConfig:
     stage2_rays: int = _opt(0, "Stage 2 (--decode pixel) decodes and scores this many random pixels of each rendered "
                             "view or patch per step (0 = all: since Session 37; 2048 before, which at 128 x 128 scored "
                             "each pixel ~5 times in stage 2 against ~22 at 64 x 64).")
-    patch_rays: int = _opt(2048, "The joint phase, and stage 2 with --decode gaussian, train on square patches of about "
-                           "this many pixels, every one scored (0 = whole views, or --patch-px patches).")
+    patch_rays: int = _opt(0, "The joint phase, and stage 2 with --decode gaussian, train on square patches of about this "
+                           "many pixels (0 = whole views or --patch-px patches, as stages 1-2 train; 2048 before Session 41).")
     views_per_step: int = _opt(1, "Training views per step (the global batch; gradients are those of the mean loss, "
                                "each view counts once in the densification statistics). Data-parallel runs "
                                "(--nproc N, torchrun --distributed) share each step's views out: a multiple of N.")
