@@ -10,7 +10,7 @@ from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model import TrainedModel
 from brfgs.model.gaussians import GaussianModel
 from brfgs.spectral.autoencoder import SpectralAutoencoder
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 
 
 class IdentityDecoder:

@@ -161,3 +161,16 @@ def test_reading_scenes_does_not_load_pvlib_pandas_or_pyproj():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "[]"
+
+
+def test_the_command_line_and_its_option_modules_start_without_torch():
+    """`brfgs --help` and every command's option parsing import the CLI and the option dataclasses only
+    (docs/architecture.md): torch (seconds to import) loads when a command runs. Session 19's
+    `--supersample` limit once pulled it into train/config.py through render/."""
+    import subprocess
+
+    code = ("import sys, brfgs.cli, brfgs.train.config, brfgs.train.presets, brfgs.workflows.options; "
+            "print('torch' in sys.modules)")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "False"

@@ -17,7 +17,8 @@ from brfgs.data.splits import apportion, assign_split, nearest_view_angle_deg, s
     view_spacing_deg
 from brfgs.model import TrainedModel, render
 from brfgs.cli.train import build_config
-from brfgs.train.config import ADDITIONS, FINE, PAPER_METHOD, PRESETS, TrainConfig, preset
+from brfgs.train.config import TrainConfig
+from brfgs.train.presets import ADDITIONS, FINE, PAPER_METHOD, PRESETS, preset
 from brfgs.workflows.ablate import _runs
 from test_train_scene import make_plane_scene
 

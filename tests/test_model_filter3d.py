@@ -14,7 +14,7 @@ from brfgs.model.camera import Camera
 from brfgs.model.filter3d import FILTER_S, bake_filter, filter_variance_m2, filtered_scales_opacities
 from brfgs.model.io import load
 from brfgs.model.rendering import rasterize_features
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.trainer import train
 from test_train_scene import make_plane_scene
 

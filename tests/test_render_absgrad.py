@@ -141,7 +141,7 @@ def test_cpu_backend_module_exposes_absgrad_on_raster():
 
 def test_training_renders_and_densifies_with_absgrad_only_when_asked(tmp_path, monkeypatch):
     import brfgs.train.strategy as strategy
-    from brfgs.train.config import preset
+    from brfgs.train.presets import preset
     from brfgs.train.trainer import train
     from test_train_scene import make_plane_scene
 

@@ -149,7 +149,7 @@ def test_factor_one_is_the_plain_render():
 
 def test_trained_model_renders_with_its_supersample(tmp_path):
     from brfgs.model import TrainedModel, render
-    from brfgs.train.config import preset
+    from brfgs.train.presets import preset
     from brfgs.train.trainer import train
     from test_train_scene import make_plane_scene
 
@@ -168,7 +168,7 @@ def test_trained_model_renders_with_its_supersample(tmp_path):
 
 @pytest.mark.parametrize("bad", [0, 5])
 def test_supersample_out_of_range_names_the_field(bad):
-    from brfgs.train.config import preset
+    from brfgs.train.presets import preset
 
     with pytest.raises(UserError) as e:
         preset("tiny", supersample=bad)

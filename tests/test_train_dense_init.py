@@ -13,7 +13,7 @@ from plyfile import PlyData
 
 from brfgs.errors import UserError
 from brfgs.model.io import load
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.dense_depth import FILE, dense_depth_loss, load_dense_depth, save_dense_depths, upsample_nearest
 from brfgs.train.trainer import train
 from test_train_pipeline import _differing

@@ -17,7 +17,7 @@ import torch
 
 from brfgs.errors import UserError
 from brfgs.model.io import load
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.distributed import Comm, check_identical, fingerprint, reduce_gradients, shard
 from brfgs.train.trainer import Trainer, train, train_parallel
 from test_train_scene import make_plane_scene

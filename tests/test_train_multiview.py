@@ -12,7 +12,7 @@ from brfgs.data.cameras import pose_from_view_angles, project_points
 from brfgs.init import mvs, plane_sweep
 from brfgs.model.camera import camera_from_intrinsics
 from brfgs.model.io import load
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.multiview import multiview_loss, patch_ncc, patch_offsets, plane_warp, relative_pose
 from brfgs.train.trainer import train
 from test_init_mvs import INTR, _render

@@ -15,7 +15,7 @@ from brfgs.data import read_scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, render
 from brfgs.model.io import load
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.trainer import Trainer, train
 from test_train_scene import make_plane_scene
 

@@ -12,7 +12,7 @@ import torch
 from brfgs.cli import main
 from brfgs.errors import UserError
 from brfgs.model.io import load
-from brfgs.train.config import preset
+from brfgs.train.presets import preset
 from brfgs.train.trainer import train
 from test_train_scene import make_plane_scene
 

@@ -13,7 +13,8 @@ import typer
 
 from brfgs.cli._config import apply_options, config_command, read_config_file
 from brfgs.errors import UserError
-from brfgs.train.config import TrainConfig, preset
+from brfgs.train.config import TrainConfig
+from brfgs.train.presets import preset
 
 # options an ablation study sets itself for each of its runs
 STUDY_FIELDS = ("variant", "components", "joint", "band_strategy")

@@ -19,8 +19,6 @@ from torch import Tensor
 
 from brfgs.render.rasterize import RenderOutput, normalised_depth
 
-MAX_SUPERSAMPLE = 4
-
 
 def fine_intrinsics(K: Tensor, factor: int) -> Tensor:
     """K [3, 3] (px) of the grid ``factor`` times finer: fx, fy, cx, cy scaled (pixel centres at +0.5)."""

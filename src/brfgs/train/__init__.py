@@ -11,7 +11,7 @@ and evaluate several runs (ablations, the demo) are in :mod:`brfgs.workflows`.
 import importlib
 
 # Exported names load on first use (PEP 562): brfgs.train.config stays importable without torch.
-_WHERE = {"TrainConfig": "brfgs.train.config", "preset": "brfgs.train.config", "Trainer": "brfgs.train.trainer",
+_WHERE = {"TrainConfig": "brfgs.train.config", "preset": "brfgs.train.presets", "Trainer": "brfgs.train.trainer",
           "train": "brfgs.train.trainer"}
 __all__ = sorted(_WHERE)
 

@@ -10,7 +10,7 @@ Studies (each run is an ordinary, resumable training run folder ``OUT/<run>``):
   geometry columns (detected features per view, matching success rate) from the init report.
 - ``baselines`` (Table 1): 3DGS on CIR composites, SH-3 in latent space, neural per-Gaussian
   decoder (MS-Splatting style), BRF-GS.
-- ``additions``: brfgs's additions beyond the paper (:data:`brfgs.train.config.ADDITIONS`): the
+- ``additions``: brfgs's additions beyond the paper (:data:`brfgs.train.presets.ADDITIONS`): the
   given options ("default"), each addition removed from them ("no_<name>"), the paper's method
   ("paper": every addition off) and each addition added to it ("paper_<name>"). Additions that
   change stage 2 only reuse the stage 1 of "default" / "paper".
@@ -40,7 +40,7 @@ from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train import TrainConfig, train
-from brfgs.train.config import ADDITIONS, PAPER_METHOD
+from brfgs.train.presets import ADDITIONS, PAPER_METHOD
 from brfgs.train.run_folder import STAGE1_CKPT, run_status
 
 STUDIES = ("kernels", "training", "bands", "baselines", "additions")

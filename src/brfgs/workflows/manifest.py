@@ -42,7 +42,8 @@ from pathlib import Path
 from brfgs.analysis.products_report import ProductsOptions
 from brfgs.data.paths import inside
 from brfgs.errors import UserError
-from brfgs.train.config import PRESETS, TrainConfig, preset
+from brfgs.train.config import TrainConfig
+from brfgs.train.presets import PRESETS, preset
 
 try:  # YAML manifests only when PyYAML is installed (Ray brings it); TOML and JSON always work
     import yaml
