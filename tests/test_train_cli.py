@@ -95,6 +95,28 @@ def test_ablate_training_cli(scene, tmp_path):
     assert "| full |" in md and "ΔPSNR [95 %]" in md
 
 
+def test_ablate_tables_take_a_run_another_call_finished_meanwhile(scene, tmp_path, monkeypatch):
+    """Two `brfgs ablate --only` calls side by side: the call that ends last writes the tables with the
+    other call's run, also when that run finished while this call trained (Session 43's tables lacked one)."""
+    import brfgs.workflows.ablate as ablate_mod
+
+    out = tmp_path / "abl"
+    opts = ["--study", "training", "--preset", "tiny", "--quiet", "--threads", "1", "--stage1-steps", "4",
+            "--stage2-steps", "4"]
+    real_train = ablate_mod.train
+
+    def other_call_finishes_joint_first(scene_path, rdir, cfg, **kw):
+        if rdir.name == "full":  # "joint" comes first in the study: this call had passed it unfinished
+            assert main(["ablate", str(scene), str(out), *opts, "--only", "joint"]) == 0
+            assert "BRF-GS (Full)" not in (out / "table_training.md").read_text()
+        return real_train(scene_path, rdir, cfg, **kw)
+
+    monkeypatch.setattr(ablate_mod, "train", other_call_finishes_joint_first)
+    assert main(["ablate", str(scene), str(out), *opts, "--only", "full"]) == 0
+    md = (out / "table_training.md").read_text()
+    assert "Joint optimization" in md and "BRF-GS (Full)" in md
+
+
 def test_every_training_option_is_on_the_command_line():
     """The options of brfgs train are generated from TrainConfig: every field (nested densification
     fields too) is an option, none is listed by hand."""

@@ -145,10 +145,7 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
     results: dict[str, dict[str, dict]] = {s: {} for s in splits}
     for name, label, cfg, src in order:
         rdir = out / name
-        if only and name not in only:  # not asked for now: in the tables if an earlier call finished it
-            for split in splits:
-                if (rdir / metrics_file(split)).is_file() and run_status(rdir) == "finished":
-                    results[split][name] = json.loads((rdir / metrics_file(split)).read_text())
+        if only and name not in only:  # not asked for now: read after this call's runs (below)
             continue
         if run_status(rdir) != "finished":
             log(f"[{study}] training {name}: {label}")
@@ -161,6 +158,11 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
             if not mfile.is_file() or mfile.stat().st_mtime < (rdir / MODEL_FILE).stat().st_mtime:
                 evaluate_run(rdir, scene_path, backend=cfg.backend, progress=progress, split=split)
             results[split][name] = json.loads(mfile.read_text())
+    for name, *_ in runs:  # in the tables if another call finished it, before or while this one trained
+        if only and name not in only and run_status(out / name) == "finished":
+            for split in splits:
+                if (out / name / metrics_file(split)).is_file():
+                    results[split][name] = json.loads((out / name / metrics_file(split)).read_text())
     res: dict = {}
     for split in splits:
         done = set(results[split])
