@@ -159,10 +159,12 @@ def ablate(scene_path, out_dir, study: str, base: TrainConfig, progress: bool = 
                 evaluate_run(rdir, scene_path, backend=cfg.backend, progress=progress, split=split)
             results[split][name] = json.loads(mfile.read_text())
     for name, *_ in runs:  # in the tables if another call finished it, before or while this one trained
-        if only and name not in only and run_status(out / name) == "finished":
+        rdir = out / name
+        if only and name not in only and run_status(rdir) == "finished":
             for split in splits:
-                if (out / name / metrics_file(split)).is_file():
-                    results[split][name] = json.loads((out / name / metrics_file(split)).read_text())
+                mfile = rdir / metrics_file(split)
+                if mfile.is_file():
+                    results[split][name] = json.loads(mfile.read_text())
     res: dict = {}
     for split in splits:
         done = set(results[split])
