@@ -72,7 +72,8 @@ class TrainConfig:
     value_range: tuple[float, float] = _opt((-0.5, 10.0), "Plausible reflectance range LO,HI of the cubes: a frame with "
                                                     "more than 5 % of its pixels above it or 1 % below is refused.")
     latent_dim: int = _opt(16, "Latent size d of the spectral autoencoder (<= 32).")
-    ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle; docs/results.md, S4).")
+    ae_steps: int = _opt(2400, "Adam steps of the autoencoder (2400 halves 800's spectral angle, S4; 9600 lowers "
+                               "the decoder's floor but not the model's SAM, S44; docs/results.md).")
     ae_batch: int = _opt(1024, "Autoencoder batch size (pixels).")
     ae_max_pixels: int = _opt(100_000, "Training pixels sampled for the autoencoder.")
     stage1_steps: int = _opt(3000, "Stage-1 (geometry) steps; joint and cir use stage1_steps + stage2_steps.")
