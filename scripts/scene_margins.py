@@ -6,7 +6,10 @@ Each DIR holds three ``brfgs train ... --validation`` runs of one scene:
 ``DIR/default`` (the default), ``DIR/sh`` (``--variant sh --from-stage1
 DIR/default/checkpoints/stage1.safetensors``) and ``DIR/joint`` (``--joint``). A missing run shows
 as "–". Per scene: CIR PSNR / SAM on the validation and test views, BRF-GS − SH-3 (test / val, dB),
-SAM ratio BRF-GS / SH-3, the joint run, the test PSNR per view ring, and the 18° − 58° gap.
+SAM ratio BRF-GS / SH-3, the joint run, the test PSNR per view ring, the 18° − 58° gap, and the
+pond where ``brfgs brf DIR/default --roi material:water --bands 480,860 --no-polar --truth-size 64
+--truth-spp 16`` has run: the backscatter side of its principal plane (view zenith ≥ 5° on the sun's
+side), mean |model − truth| at the longest band (860 nm), and the principal plane's RMSE per band.
 """
 
 from __future__ import annotations
@@ -33,19 +36,33 @@ def _gap(m: dict | None) -> str:
     return f"{m['rings']['18']['psnr'] - m['rings']['58']['psnr']:.2f}"
 
 
+def _pond(run: Path) -> str:
+    """The pond's 860 nm backscatter-side error and its principal-plane RMSE per band, from brf.json."""
+    path = run / "analysis" / "brf_water" / "brf.json"
+    if not path.exists():
+        return "–"
+    vs = json.loads(path.read_text())["principal_plane"].get("vs_truth_render")
+    if not vs:
+        return "–"
+    back = vs["mean_abs_error_by_side"]["backscatter"]
+    longest = max(back, key=float)
+    rmse = " / ".join("–" if v is None else f"{v:.4f}" for v in vs["rmse"].values())
+    return f"{back[longest]:.4f} ({rmse})"
+
+
 def _row(label: str, root: Path, against: str) -> str:
     test = {k: _load(root / k, "metrics.json", against) for k in ("default", "sh", "joint")}
     val = {k: _load(root / k, "metrics_validation.json", against) for k in ("default", "sh")}
     d, s, dv, sv = test["default"], test["sh"], val["default"], val["sh"]
     if d is None:
-        return f"| {label} | (no finished default run in {root}) |" + " |" * 7
+        return f"| {label} | (no finished default run in {root}) |" + " |" * 8
     margin = ratio = "–"
     if s and sv and dv:
         margin = f"{d['mean']['psnr'] - s['mean']['psnr']:+.2f} / {dv['mean']['psnr'] - sv['mean']['psnr']:+.2f}"
         ratio = f"{d['mean']['sam'] / s['mean']['sam']:.2f} / {dv['mean']['sam'] / sv['mean']['sam']:.2f}"
     rings = " / ".join(f"{d['rings'][k]['psnr']:.2f}" if k in d["rings"] else "–" for k in RINGS)
     return (f"| {label} | {_pair(dv)} | {_pair(d)} | {_pair(s)} | {margin} | {ratio} | {_pair(test['joint'])} "
-            f"| {rings} | {_gap(d)} / {_gap(dv)} |")
+            f"| {rings} | {_gap(d)} / {_gap(dv)} | {_pond(root / 'default')} |")
 
 
 def main() -> None:
@@ -55,8 +72,9 @@ def main() -> None:
     args = ap.parse_args()
     print("| scene | default: val PSNR / SAM | default: test PSNR / SAM | SH-3 (same stage 1): test PSNR / SAM "
           "| BRF-GS − SH-3 dB (test / val) | SAM ratio (test / val) | joint: test PSNR / SAM "
-          "| test PSNR 18° / 23° / 38° / 58° | 18° − 58° dB (test / val) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| test PSNR 18° / 23° / 38° / 58° | 18° − 58° dB (test / val) "
+          "| pond: 860 nm backscatter error (principal-plane RMSE per band) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for item in args.scenes:
         label, _, path = item.partition("=")
         print(_row(label, Path(path or label), args.against))
