@@ -51,8 +51,8 @@ class TrainConfig:
     """
 
     preset: str = _opt("fast", "Preset the other defaults come from: fast (CPU minutes, every addition on), fine (fast "
-                       "with --supersample 2 from half of stage 1 and --densify-absgrad: +0.3-0.7 dB on the 49-view "
-                       "scenes, 1.5-1.6x the stage-1 time on a CPU), paper (the "
+                       "with --supersample 2 from half of stage 1 and --densify-absgrad: +0.1-0.9 dB on the 49-view "
+                       "scenes, 1.2-1.3x the training time and its views ~1.6x the render time on a CPU), paper (the "
                        "published method, GPU-scale schedule), paper-fast (the published method, fast schedule), "
                        "tiny (tests).")
     variant: str = _opt("brf", "brf (BRF-GS, hybrid kernels), sh (SH-3 in latent space), neural (MS-Splatting-style "

@@ -2,7 +2,8 @@
 
 Presets: ``fast`` (CPU, minutes for a 128-px scene: brfgs's method, every addition on),
 ``fine`` (``fast`` with supersampled pixels from half of stage 1 on and AbsGS's densification:
-more accurate, 1.5-1.6x the stage-1 time on a CPU; :data:`FINE`), ``paper`` (the published
+more accurate on 49-view scenes, 1.2-1.3x the training time on a CPU, and its models render
+supersampled, ~1.6x the time per view; :data:`FINE`), ``paper`` (the published
 method on a GPU-scale, 3DGS-like 30k-step schedule), ``paper-fast`` (the published method on the
 ``fast`` schedule: what the additions are measured against on a CPU), ``tiny`` (tests: a few
 steps). :data:`ADDITIONS` names each choice beyond the paper with the option values that switch it
