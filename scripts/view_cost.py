@@ -12,7 +12,6 @@ Prints per model the median ms, its rasterization and decode parts, and the rati
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import statistics
 import time
@@ -20,14 +19,8 @@ import time
 import numba
 import torch
 
-from brfgs.analysis.views import view_camera
+from brfgs.analysis.bench import bench_camera
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
-
-
-def _camera(tm: TrainedModel, size: int):
-    fov_deg = 2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x))
-    c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size, fov_deg=fov_deg)
-    return camera_from_intrinsics(c2w, intr)
 
 
 def main() -> None:
@@ -42,7 +35,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     runs = (args.run_a, args.run_b)
     models = {r: TrainedModel.load(r) for r in runs}
-    cams = {r: _camera(models[r], args.size) for r in runs}
+    cams = {r: camera_from_intrinsics(*bench_camera(models[r], args.size)) for r in runs}
     for r in runs:  # warm-up (numba compilation, allocator)
         for _ in range(2):
             render(models[r], cams[r], normals=True, backend="cpu")

@@ -36,7 +36,7 @@ from brfgs.render.bench import accelerator_record
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.spectral.fast_decode import reference_decoding
 
-__all__ = ["synthetic_model", "bench_analysis", "bench_view"]
+__all__ = ["synthetic_model", "bench_camera", "bench_analysis", "bench_view"]
 
 
 def _synthetic_gaussians(n_gaussians: int, latent_dim: int, seed: int) -> tuple[GaussianModel, HeadConfig]:
@@ -87,6 +87,13 @@ def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: i
                         meta={"cir_indices": [123, 76, 50], "cir_scale": [1.0, 1.0, 1.0]})
 
 
+def bench_camera(tm: TrainedModel, size: int):
+    """The benchmarks' arbitrary view: zenith 37°, azimuth 65°, at the training cameras' typical distance
+    with their horizontal field of view, ``size``² pixels. Returns (c2w [4, 4], Intrinsics)."""
+    fov_deg = 2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x))
+    return view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size, fov_deg=fov_deg)
+
+
 def _timed(fn: Callable[[], object], repeats: int) -> tuple[list[float], list[float]]:
     """(wall seconds, CPU seconds of this process) of ``repeats`` calls of ``fn``."""
     ts, cs = [], []
@@ -124,8 +131,7 @@ def bench_analysis(
 ) -> dict:
     """Time one arbitrary view (decoded, all bands) and one polar map (4 bands); returns a dict."""
     tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
-    c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size,
-                            fov_deg=2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x)))
+    c2w, intr = bench_camera(tm, size)
     cam = camera_from_intrinsics(c2w, intr)
     load_before = os.getloadavg()
     def view():  # the view as `brfgs render` makes it: cube, CIR, depth and normals
@@ -221,10 +227,9 @@ def bench_view(model: str | Path | None = None, *, n_gaussians: int = 50_000, si
     view size and bands. Returns a JSON-ready dict."""
     tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
     load_before = os.getloadavg()
-    fov = 2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x))
     rows = []
     for size in sizes:
-        c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size, fov_deg=fov)
+        c2w, intr = bench_camera(tm, size)
         row = {"size": [intr.w, intr.h], **_view_rounds(tm, camera_from_intrinsics(c2w, intr), repeats, backend)}
         if simulator and tm.spectral:
             row["simulator_view_s"] = _simulator_view_s(size, len(tm.wavelengths_nm))

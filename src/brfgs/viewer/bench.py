@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 import statistics
 import time
@@ -11,8 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from brfgs.analysis.bench import machine_record, synthetic_model
-from brfgs.analysis.views import view_camera
+from brfgs.analysis.bench import bench_camera, machine_record, synthetic_model
 from brfgs.model import TrainedModel
 from brfgs.model import camera_from_intrinsics, render
 from brfgs.spectral.band_decode import decode_bands
@@ -49,8 +47,7 @@ def bench_viewer(model: str | Path | None = None, *, n_gaussians: int = 50_000, 
     from an oblique camera (view zenith 37°, azimuth 65°) at the training cameras' distance with
     their field of view; the model from ``model`` or a synthetic one of ``n_gaussians``."""
     tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
-    fov_deg = 2 * math.degrees(math.atan(0.5 * tm.intrinsics.w / tm.intrinsics.fl_x))
-    c2w, intr = view_camera(37.0, 65.0, tm.typical_distance_m(), tm.scene_centre_m(), size=size, fov_deg=fov_deg)
+    c2w, intr = bench_camera(tm, size)
     load_before = os.getloadavg()
     rows = {}
     for text in modes:
