@@ -133,6 +133,37 @@ def test_spectral_tv_gradient_and_denoising_of_a_dark_uniform_surface():
     assert smooth < 0.3 * plain, (plain, smooth)  # 0.022 against 0.217 rad
 
 
+def test_spectral_tv_of_a_whole_image_matches_the_gathered_pairs():
+    """Stage 2 scores every pixel's spectral TV with shifted slices of the image
+    (train.step._spectral_tv_image); the loss and its gradient are those of the reference that
+    gathers each pixel's right and lower neighbour by index (train.step._spectral_tv over all
+    pixels), with invalid pixels, a NaN target and an edge in the scene."""
+    from brfgs.train.step import _spectral_tv, _spectral_tv_image
+
+    g = torch.Generator().manual_seed(3)
+    h, w, b = 10, 13, 17
+    obs = 0.05 + 0.3 * torch.rand(h, w, b, generator=g, dtype=torch.float64)  # [H, W, B]
+    obs[:, 7:] *= 3.0  # a brightness edge: its pairs weigh ~0
+    valid = torch.rand(h, w, generator=g) > 0.15
+    obs[~valid] = float("nan")
+    img = obs.nan_to_num(0.2) + 0.02 * torch.randn(h, w, b, generator=g, dtype=torch.float64)
+
+    def reference(x):
+        flat = x.reshape(-1, b)
+        return _spectral_tv(lambda q: flat[q], obs, valid, torch.arange(h * w), flat)
+
+    out = []
+    for fn in (reference, lambda x: _spectral_tv_image(x, obs, valid)):
+        x = img.clone().requires_grad_(True)
+        val = fn(x)
+        val.backward()
+        out.append((val.detach(), x.grad))
+    assert out[0][0].item() > 0
+    assert torch.allclose(out[0][0], out[1][0], rtol=1e-12, atol=0)
+    assert torch.allclose(out[0][1], out[1][1], rtol=1e-10, atol=1e-18)
+    assert out[1][1].abs().sum() > 0
+
+
 def test_decode_once_matches_decoding_each_request_apart():
     """Stage 2's ray path decodes the scored pixels and their TV neighbours once each
     (train.step._decode_once); the loss and its gradient with respect to the latent image are

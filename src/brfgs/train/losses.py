@@ -40,16 +40,19 @@ def area_pool(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor,
     return pool(pred), pool(t), v_pooled
 
 
-def masked_l1(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """Mean |pred - target| over valid pixels and channels (eq. 26 when C = B)."""
+def masked_l1(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, filled: bool = False) -> torch.Tensor:
+    """Mean |pred - target| over valid pixels and channels (eq. 26 when C = B); ``filled``: ``target``
+    is already :func:`fill_invalid`'s."""
     n = valid.sum().clamp_min(1) * pred.shape[-1]
-    t = fill_invalid(pred, target, valid)
+    t = target if filled else fill_invalid(pred, target, valid)
     return (pred - t).abs().sum() / n
 
 
-def masked_cos(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
-    """Mean (1 - cosine similarity) of per-pixel spectra over valid pixels (eq. 27)."""
-    t = fill_invalid(pred, target, valid)
+def masked_cos(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, eps: float = 1e-8,
+               filled: bool = False) -> torch.Tensor:
+    """Mean (1 - cosine similarity) of per-pixel spectra over valid pixels (eq. 27); ``filled``:
+    ``target`` is already :func:`fill_invalid`'s."""
+    t = target if filled else fill_invalid(pred, target, valid)
     cos = (pred * t).sum(-1) / (pred.norm(dim=-1) * t.norm(dim=-1)).clamp_min(eps)
     return ((1 - cos) * valid).sum() / valid.sum().clamp_min(1)
 
@@ -112,10 +115,10 @@ def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, a
     D-SSIM = 1 - SSIM; each image compared (the grayscale one, or each band) is scaled by the
     target's valid maximum so SSIM's constants see a [0, 1] range.
     """
-    l1 = masked_l1(pred, target, valid)
+    t = fill_invalid(pred, target, valid)
+    l1 = masked_l1(pred, t, valid, filled=True)
     if alpha <= 0 or min(pred.shape[0], pred.shape[1]) < 11:
         return l1
-    t = fill_invalid(pred, target, valid)
     gp, gt = (pred, t) if per_band else (pred.mean(-1, keepdim=True), t.mean(-1, keepdim=True))  # [H, W, k or 1]
     scale = gt.detach()[valid].amax(0).clamp_min(1e-6) if valid.any() else torch.ones(gt.shape[-1])  # [k or 1]
     dssim = 1 - ssim_torch(gp / scale, gt / scale, valid=valid)
@@ -124,7 +127,8 @@ def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, a
 
 def stage2_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, beta: float) -> torch.Tensor:
     """(1 - beta) L_refl + beta L_cos (eqs. 25-27) over all bands."""
-    return (1 - beta) * masked_l1(pred, target, valid) + beta * masked_cos(pred, target, valid)
+    t = fill_invalid(pred, target, valid)  # [H, W, B], once for both terms
+    return (1 - beta) * masked_l1(pred, t, valid, filled=True) + beta * masked_cos(pred, t, valid, filled=True)
 
 
 @torch.no_grad()
@@ -132,7 +136,8 @@ def masked_psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -
     """PSNR (data range 1) over valid pixels, for progress bars."""
     if not valid.any():
         return float("nan")
-    mse = ((pred - target)[valid] ** 2).mean().clamp_min(1e-12)
+    se = ((pred - target) ** 2).sum(-1)  # [...] summed over the channels: no boolean gather of the whole image
+    mse = (se[valid].sum() / (valid.sum() * pred.shape[-1])).clamp_min(1e-12)
     return float(-10 * torch.log10(mse))
 
 
