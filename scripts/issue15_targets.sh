@@ -9,7 +9,9 @@
 #
 #   bash scripts/issue15_targets.sh OUT [SCENES] [SEEDS]
 #
-#   SCENES  comma list of ts128, ts64, sun20, sun55, forest64 (default: all five)
+#   SCENES  comma list of ts128, ts64, sun20, sun55, forest64 (default: all five, the scenes the
+#           defaults were chosen on), or of the scenes no setting was chosen on (Session 29): tsA64,
+#           tsB64, tsC64, tsD64, fB64 (other suns, seeds, camera and view layouts)
 #   SEEDS   comma list of training seeds (default: 0,1)
 #
 # Reruns skip what is finished (a scene with transforms.json, a run with metrics.json, a pond
@@ -37,7 +39,13 @@ sim_args() {  # the simulate options of a scene label (docs/results.md, Sessions
     sun20) echo "--scene testsite --size ${size:-64} --sun-zenith 20" ;;
     sun55) echo "--scene testsite --size ${size:-64} --sun-zenith 55" ;;
     forest64) echo "--scene forest --size ${size:-64}" ;;
-    *) echo "issue15_targets: unknown scene '$1' (ts128, ts64, sun20, sun55, forest64)" >&2; exit 2 ;;
+    tsA64) echo "--scene testsite --size ${size:-64} --sun-zenith 30 --sun-azimuth 240 --seed 3" ;;
+    tsB64) echo "--scene testsite --size ${size:-64} --sun-zenith 45 --sun-azimuth 60 --distance 80 --fov 45 --seed 5" ;;
+    tsC64) echo "--scene testsite --size ${size:-64} --rings 12,30,45,60 --azimuths 10 --sun-zenith 50 --sun-azimuth 100 --seed 7" ;;
+    tsD64) echo "--scene testsite --size ${size:-64} --sun-zenith 65 --sun-azimuth 200 --seed 11" ;;
+    fB64) echo "--scene forest --size ${size:-64} --sun-zenith 45 --sun-azimuth 60 --seed 5" ;;
+    *) echo "issue15_targets: unknown scene '$1' (ts128, ts64, sun20, sun55, forest64, tsA64, tsB64, tsC64, tsD64, fB64)" >&2
+       exit 2 ;;
   esac
 }
 
@@ -66,7 +74,7 @@ for s in "${scenes[@]}"; do
     train "$dir/sh" "$scene" --seed "$seed" --variant sh --from-stage1 "$dir/default/checkpoints/stage1.safetensors"
     train "$dir/joint" "$scene" --seed "$seed" --joint
     a_runs+=("$dir/default") b_runs+=("$dir/sh") j_runs+=("$dir/joint")
-    if [ "$s" != forest64 ] && [ ! -f "$dir/default/analysis/brf_water/brf.json" ]; then  # the pond
+    if [ "$s" != forest64 ] && [ "$s" != fB64 ] && [ ! -f "$dir/default/analysis/brf_water/brf.json" ]; then  # the pond
       brfgs brf "$dir/default" --roi material:water --bands 480,860 --no-polar --truth-size 64 --truth-spp 16 --quiet
     fi
     pond+=("${s}_s$seed=$dir")

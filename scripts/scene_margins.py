@@ -6,8 +6,9 @@ Each DIR holds three ``brfgs train ... --validation`` runs of one scene:
 ``DIR/default`` (the default), ``DIR/sh`` (``--variant sh --from-stage1
 DIR/default/checkpoints/stage1.safetensors``) and ``DIR/joint`` (``--joint``). A missing run shows
 as "–". Per scene: CIR PSNR / SAM on the validation and test views, BRF-GS − SH-3 (test / val, dB),
-SAM ratio BRF-GS / SH-3, the joint run, the test PSNR per view ring, the 18° − 58° gap, and the
-pond where ``brfgs brf DIR/default --roi material:water --bands 480,860 --no-polar --truth-size 64
+SAM ratio BRF-GS / SH-3, the joint run, the test PSNR per view ring (the scene's own rings, e.g.
+18 / 23 / 38 / 58° or tsC64's 12 / 30 / 45 / 60°), the gap from the lowest oblique ring (the lowest
+ring of 5° or more) to the highest, and the pond where ``brfgs brf DIR/default --roi material:water --bands 480,860 --no-polar --truth-size 64
 --truth-spp 16`` has run: the backscatter side of its principal plane (view zenith ≥ 5° on the sun's
 side), mean |model − truth| at the longest band (860 nm), and the principal plane's RMSE per band.
 """
@@ -17,8 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-
-RINGS = ("18", "23", "38", "58")
 
 
 def _load(run: Path, name: str, against: str) -> dict | None:
@@ -30,10 +29,17 @@ def _pair(m: dict | None) -> str:
     return f"{m['mean']['psnr']:.2f} / {m['mean']['sam']:.4f}" if m else "–"
 
 
+def _rings(m: dict) -> list[str]:
+    """The view rings of a metrics dict (zenith labels in degrees), lowest first."""
+    return sorted(m["rings"], key=float)
+
+
 def _gap(m: dict | None) -> str:
-    if not m or not all(k in m["rings"] for k in ("18", "58")):
+    """PSNR of the lowest oblique ring (≥ 5°) minus that of the highest ring, dB."""
+    rings = [k for k in _rings(m) if float(k) >= 5.0] if m else []
+    if len(rings) < 2:
         return "–"
-    return f"{m['rings']['18']['psnr'] - m['rings']['58']['psnr']:.2f}"
+    return f"{m['rings'][rings[0]]['psnr'] - m['rings'][rings[-1]]['psnr']:.2f}"
 
 
 def _pond(run: Path) -> str:
@@ -60,7 +66,7 @@ def _row(label: str, root: Path, against: str) -> str:
     if s and sv and dv:
         margin = f"{d['mean']['psnr'] - s['mean']['psnr']:+.2f} / {dv['mean']['psnr'] - sv['mean']['psnr']:+.2f}"
         ratio = f"{d['mean']['sam'] / s['mean']['sam']:.2f} / {dv['mean']['sam'] / sv['mean']['sam']:.2f}"
-    rings = " / ".join(f"{d['rings'][k]['psnr']:.2f}" if k in d["rings"] else "–" for k in RINGS)
+    rings = " / ".join(f"{d['rings'][k]['psnr']:.2f}" for k in _rings(d)) + f" ({'/'.join(_rings(d))}°)"
     return (f"| {label} | {_pair(dv)} | {_pair(d)} | {_pair(s)} | {margin} | {ratio} | {_pair(test['joint'])} "
             f"| {rings} | {_gap(d)} / {_gap(dv)} | {_pond(root / 'default')} |")
 
@@ -72,7 +78,7 @@ def main() -> None:
     args = ap.parse_args()
     print("| scene | default: val PSNR / SAM | default: test PSNR / SAM | SH-3 (same stage 1): test PSNR / SAM "
           "| BRF-GS − SH-3 dB (test / val) | SAM ratio (test / val) | joint: test PSNR / SAM "
-          "| test PSNR 18° / 23° / 38° / 58° | 18° − 58° dB (test / val) "
+          "| test PSNR per ring | lowest − highest ring dB (test / val) "
           "| pond: 860 nm backscatter error (principal-plane RMSE per band) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for item in args.scenes:
