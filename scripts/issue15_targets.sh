@@ -74,7 +74,8 @@ for s in "${scenes[@]}"; do
     train "$dir/sh" "$scene" --seed "$seed" --variant sh --from-stage1 "$dir/default/checkpoints/stage1.safetensors"
     train "$dir/joint" "$scene" --seed "$seed" --joint
     a_runs+=("$dir/default") b_runs+=("$dir/sh") j_runs+=("$dir/joint")
-    if [ "$s" != forest64 ] && [ "$s" != fB64 ] && [ ! -f "$dir/default/analysis/brf_water/brf.json" ]; then  # the pond
+    # the pond, on the testsites (the forest has no water)
+    if [[ $(sim_args "$s") == *"--scene testsite"* ]] && [ ! -f "$dir/default/analysis/brf_water/brf.json" ]; then
       brfgs brf "$dir/default" --roi material:water --bands 480,860 --no-polar --truth-size 64 --truth-spp 16 --quiet
     fi
     pond+=("${s}_s$seed=$dir")

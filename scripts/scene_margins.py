@@ -8,8 +8,8 @@ DIR/default/checkpoints/stage1.safetensors``) and ``DIR/joint`` (``--joint``). A
 as "–". Per scene: CIR PSNR / SAM on the validation and test views, BRF-GS − SH-3 (test / val, dB),
 SAM ratio BRF-GS / SH-3, the joint run, the test PSNR per view ring (the scene's own rings, e.g.
 18 / 23 / 38 / 58° or tsC64's 12 / 30 / 45 / 60°), the gap from the lowest oblique ring (the lowest
-ring of 5° or more) to the highest, and the pond where ``brfgs brf DIR/default --roi material:water --bands 480,860 --no-polar --truth-size 64
---truth-spp 16`` has run: the backscatter side of its principal plane (view zenith ≥ 5° on the sun's
+ring of 5° or more) to the highest, and the pond where ``brfgs brf DIR/default --roi material:water
+--bands 480,860 --no-polar --truth-size 64 --truth-spp 16`` has run: the backscatter side of its principal plane (view zenith ≥ 5° on the sun's
 side), mean |model − truth| at the longest band (860 nm), and the principal plane's RMSE per band.
 """
 
@@ -66,7 +66,8 @@ def _row(label: str, root: Path, against: str) -> str:
     if s and sv and dv:
         margin = f"{d['mean']['psnr'] - s['mean']['psnr']:+.2f} / {dv['mean']['psnr'] - sv['mean']['psnr']:+.2f}"
         ratio = f"{d['mean']['sam'] / s['mean']['sam']:.2f} / {dv['mean']['sam'] / sv['mean']['sam']:.2f}"
-    rings = " / ".join(f"{d['rings'][k]['psnr']:.2f}" for k in _rings(d)) + f" ({'/'.join(_rings(d))}°)"
+    names = _rings(d)
+    rings = " / ".join(f"{d['rings'][k]['psnr']:.2f}" for k in names) + f" ({'/'.join(names)}°)"
     return (f"| {label} | {_pair(dv)} | {_pair(d)} | {_pair(s)} | {margin} | {ratio} | {_pair(test['joint'])} "
             f"| {rings} | {_gap(d)} / {_gap(dv)} | {_pond(root / 'default')} |")
 
