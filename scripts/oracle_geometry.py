@@ -8,9 +8,10 @@ points and its dense-depth targets: from the simulator's ``truth/depth`` maps of
 instead of plane-sweep stereo. Those maps are unprojected to the true surface and thinned to one point
 per 5 cm voxel, then to ``--init-fill-points`` (seeded by ``--seed``). The maps are also saved as the
 dense-depth targets. ``--densify-refine-stop 0`` keeps the start: no clone, split, prune or opacity
-reset. A real flight has no truth depth, so this bounds what exact geometry would give each
-appearance head. docs/results.md, Session 50, runs it for BRF-GS and for SH-3
-(``--variant sh --from-stage1 OUT/checkpoints/stage1.safetensors``, with the same options).
+reset. A real flight has no truth depth, so this estimates what exact geometry would give each
+appearance head: an upper bound for these settings, not a proof for every schedule. docs/results.md,
+Session 50, runs it for BRF-GS and for SH-3 (``--variant sh --from-stage1
+OUT/checkpoints/stage1.safetensors``, with the same options).
 """
 
 import zlib  # noqa: F401  (before pycolmap, which breaks zlib when imported first)
@@ -39,9 +40,10 @@ def truth_fill(state, scene, cfg, init, images, folder, log) -> np.ndarray:
     if len(pts) > cfg.init_fill_points:
         keep = np.random.default_rng(cfg.seed).choice(len(pts), cfg.init_fill_points, replace=False)
         pts = pts[np.sort(keep)]
-    depths = [np.load(scene.truth_dir / "depth" / f"{scene.frames[i].name}.npy") for i in tr]  # [h, w] m
-    save_dense_depths(folder.out / "init" / FILE, [scene.frames[i].name for i in tr], depths)
-    log(f"init: ORACLE: {len(pts)} points on the true surface, truth depth maps of {len(tr)} training views")
+    maps = {scene.frames[i].name: scene.truth_dir / "depth" / f"{scene.frames[i].name}.npy" for i in tr}
+    maps = {name: path for name, path in maps.items() if path.is_file()}  # the maps surface_samples read
+    save_dense_depths(folder.out / "init" / FILE, list(maps), [np.load(path) for path in maps.values()])  # [h, w] m
+    log(f"init: ORACLE: {len(pts)} points on the true surface, truth depth maps of {len(maps)} training views")
     return pts
 
 
