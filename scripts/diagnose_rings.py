@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.analysis.evaluate import _scene_for
+from brfgs.evaluation.evaluate import _scene_for
 from brfgs.data.cameras import pixel_rays
 from brfgs.data.cir import cir_composite
 from brfgs.model import MODEL_FILE, TrainedModel, render

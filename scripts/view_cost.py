@@ -51,7 +51,7 @@ def main() -> None:
     for r in runs:
         ras = statistics.median(p["rasterize_s"] for p in parts[r]) * 1e3
         dec = statistics.median(p["decode_s"] for p in parts[r]) * 1e3
-        print(f"{r}: supersample {models[r].supersample}, {models[r].n_gaussians} Gaussians: "
+        print(f"{r}: supersample {models[r].render_settings.supersample}, {models[r].n_gaussians} Gaussians: "
               f"{statistics.median(total[r]) * 1e3:.1f} ms (rasterize {ras:.1f}, decode {dec:.1f})")
     print(f"ratio B / A: {statistics.median(total[runs[1]]) / statistics.median(total[runs[0]]):.2f}")
 

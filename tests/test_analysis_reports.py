@@ -11,11 +11,11 @@ import pytest
 import spectral.io.envi as envi
 
 from brfgs.analysis import brf as B
-from brfgs.analysis import products as P
+from brfgs.products import maps as P
 from brfgs.analysis.brf_report import BRFOptions, brf_report
-from brfgs.analysis.export import ExportOptions, export_model, read_ply
-from brfgs.analysis.mcd43_maps import render_mcd43
-from brfgs.analysis.products_report import ProductsOptions, products_report
+from brfgs.products.export import ExportOptions, export_model, read_ply
+from brfgs.products.mcd43_maps import render_mcd43
+from brfgs.products.report import ProductsOptions, products_report
 from brfgs.analysis.render_report import RenderOptions, render_report
 from brfgs.analysis.roi_spec import parse_roi_spec, resolve_roi
 from brfgs.data.cameras import Intrinsics

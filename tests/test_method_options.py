@@ -308,7 +308,7 @@ class _Linear(torch.nn.Module):
 def test_decode_orders_agree_for_a_linear_decoder(trained):
     _, out = trained
     tm = TrainedModel.load(out / "model.safetensors")
-    assert tm.decode_order == "gaussian"
+    assert tm.render_settings.decode_order == "gaussian"
     tm.decoder = _Linear(tm.gaussians.latent_dim, 8)
     cam = tm.cameras[3]
     a = render(tm, cam, decode_order="gaussian", backend="torch")
@@ -427,7 +427,7 @@ def test_antialiased_model_trains_and_renders_with_the_filter(trained, tmp_path)
     assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "4",
                  "--antialias", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
     tm = TrainedModel.load(out / "model.safetensors")
-    assert tm.antialiased and json.loads((out / "config.json").read_text())["antialias"] is True
+    assert tm.render_settings.antialias and json.loads((out / "config.json").read_text())["antialias"] is True
     with_filter = render(tm, tm.cameras[0], backend="torch")
     tm.config["antialias"] = False
     without = render(tm, tm.cameras[0], backend="torch")

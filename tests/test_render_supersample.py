@@ -157,7 +157,7 @@ def test_trained_model_renders_with_its_supersample(tmp_path):
     scene = make_plane_scene(tmp_path / "scene", w=48, h=32, n_bands=12)
     cfg = preset("tiny", threads=1, stage1_steps=6, stage2_steps=2, supersample=2)
     lm = TrainedModel.load(train(scene, tmp_path / "run", cfg, progress=False, log=None))
-    assert lm.supersample == 2
+    assert lm.render_settings.supersample == 2
     cam = lm.cameras[0]
     r2 = render(lm, cam)
     lm.config["supersample"] = 1

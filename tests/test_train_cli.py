@@ -234,7 +234,7 @@ def test_ablation_rows_are_compared_with_their_reference_run():
 
 def test_ablation_row_intervals_are_brfgs_compare_intervals(tmp_path):
     """versus() gives a row the margin, SAM ratio and 95 % intervals that brfgs compare gives the same pair."""
-    from brfgs.analysis.compare import compare, read_scores
+    from brfgs.evaluation.compare import compare, read_scores
     from brfgs.workflows.ablate import versus
 
     rng = torch.Generator().manual_seed(3)

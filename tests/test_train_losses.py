@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.analysis.metrics import sam, ssim
+from brfgs.evaluation.metrics import sam, ssim
 from brfgs.spectral.autoencoder import spectral_angle_torch
 from brfgs.train.losses import masked_cos, masked_l1, masked_psnr, ssim_torch, stage1_loss, stage2_loss
 

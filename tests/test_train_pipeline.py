@@ -219,7 +219,7 @@ def test_baseline_heads_share_stage1_and_joint_runs(scene, tmp_path):
 
 def test_streaming_and_patch_training(scene, tmp_path):
     """Cubes not cached (cache_gib=0) and random 24x24 patches: trains and evaluates."""
-    from brfgs.analysis.evaluate import evaluate_run
+    from brfgs.evaluation.evaluate import evaluate_run
 
     cfg = _cfg(stage1_steps=4, stage2_steps=4, cache_gib=0.0, patch_px=24)
     tr = Trainer(scene, tmp_path / "p", cfg, progress=False, log=None)

@@ -11,7 +11,7 @@ from matplotlib import colormaps
 from brfgs.analysis import brf as B
 from brfgs.analysis.bench import synthetic_model
 from brfgs.analysis.polygons import read_geojson_polygons
-from brfgs.analysis.products import nadir_camera
+from brfgs.products.maps import nadir_camera
 from brfgs.data.cameras import Intrinsics, look_at_c2w, project_points, viewmat_from_c2w
 from brfgs.errors import UserError
 from brfgs.model import render

@@ -163,7 +163,7 @@ def bench_analysis(
         "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
         "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
                    "median_cpu_s": statistics.median(cpu), "repeats": repeats, "split_s": rv.timings_s,
-                   "decode_order": tm.decode_order, "median_s_by_decode_order": orders},
+                   "decode_order": tm.render_settings.decode_order, "median_s_by_decode_order": orders},
         "polar_map": {"directions": polar_azimuths * polar_zeniths, "bands": len(bi),
                       "roi_camera_px": roi_size_px or auto_roi_size(tm, 1.1 * roi.radius_m),
                       "median_s": statistics.median(pts), "all_s": pts, "cpu_s": pcs,

@@ -47,7 +47,7 @@ from brfgs.data.cube_io import envi_image_path
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
-from brfgs.model.rendering import pixel_spectra, spectral_features
+from brfgs.model.view import pixel_spectra, spectral_features
 
 __all__ = [
     "MIN_ALPHA",
@@ -112,7 +112,7 @@ def roi_mean_from_view(
     """(mean reflectance [B], number of ROI pixels, ROI mask [H, W]) of one rendered view
     (plus the decoded ROI pixels [n, B] in mask order when ``return_pixels``).
 
-    Spectra in the model's decode order (:func:`brfgs.model.rendering.pixel_spectra`); with order
+    Spectra in the model's decode order (:func:`brfgs.model.view.pixel_spectra`); with order
     "pixel" only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per
     pixel and then averaged, as a sensor would average reflectance).
     """

@@ -4,7 +4,13 @@
 flattened: ``densify.refine_every`` is ``--densify-refine-every``), typed from the field, with
 the field's ``metadata["help"]`` as help and ``metadata["flag"]`` as an explicit flag
 (e.g. ``--joint/--decoupled``). Every generated option defaults to None, meaning "not given", so
-the command can layer preset < config file < options (:func:`apply_options`).
+the command can layer preset < config file < options (:func:`apply_options`); a field without a
+default is a required option.
+
+Other metadata keys: ``panel`` (the heading the option is listed under in ``--help``), ``expert``
+(True: listed only by ``--help-all``, under "Experimental and expert options"), ``aliases`` (short
+flags such as ``("-o",)``) and ``metavar``. Every field's help is one line of product terms; the
+reasons and measurements behind a setting are in the documentation.
 """
 
 from __future__ import annotations
@@ -31,6 +37,11 @@ class ConfigOption:
     kind: Any
     flag: str
     help: str
+    panel: str | None = None
+    expert: bool = False
+    aliases: tuple[str, ...] = ()
+    metavar: str | None = None
+    required: bool = False
 
     @property
     def name(self) -> str:
@@ -59,7 +70,10 @@ def config_options(cls, prefix: tuple[str, ...] = ()) -> list[ConfigOption]:
             out += config_options(tp, path)
             continue
         flag = f.metadata.get("flag") or "--" + "-".join(path).replace("_", "-")
-        out.append(ConfigOption(path, _kind(tp), flag, f.metadata.get("help", "")))
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        out.append(ConfigOption(path, _kind(tp), flag, f.metadata.get("help", ""), f.metadata.get("panel"),
+                                bool(f.metadata.get("expert", False)), tuple(f.metadata.get("aliases", ())),
+                                f.metadata.get("metavar"), required))
     return out
 
 
@@ -128,19 +142,43 @@ def read_config_file(path: Path) -> dict:
     return data
 
 
+EXPERT_PANEL = "Experimental and expert options"
+
+
+def _show_all_help(ctx: typer.Context, _param, value: bool) -> None:
+    """``--help-all``: the command's help with the expert options listed too."""
+    if not value or ctx.resilient_parsing:
+        return
+    for p in ctx.command.params:
+        p.hidden = False
+    typer.echo(ctx.get_help())
+    raise typer.Exit()
+
+
+def _option_parameter(o: ConfigOption) -> inspect.Parameter:
+    """The keyword parameter (a typer.Option) of a generated option."""
+    annotation = o.kind if o.required else Optional[o.kind]
+    option = typer.Option(... if o.required else None, o.flag, *o.aliases, help=o.help, show_default=False,
+                          metavar=o.metavar, hidden=o.expert, rich_help_panel=EXPERT_PANEL if o.expert else o.panel)
+    return inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, annotation=annotation, default=option)
+
+
 def config_command(app: typer.Typer, name: str, cls, *, skip: tuple[str, ...] = ()) -> Callable:
     """Decorator registering ``fn`` as command ``name`` with its own parameters plus one option
     per field of ``cls`` (except ``skip``); ``fn`` receives the given ones as ``options``
-    ({field path: value}, see :func:`given_options`)."""
+    ({field path: value}, see :func:`given_options`). When some fields are ``expert``, a
+    ``--help-all`` option lists them (``--help`` does not)."""
 
     def deco(fn: Callable) -> Callable:
         opts = [o for o in config_options(cls) if o.name not in skip]
         own = [p for p in inspect.signature(fn).parameters.values() if p.name != "options"]
         hints = typing.get_type_hints(fn)
         params = [p.replace(annotation=hints.get(p.name, p.annotation)) for p in own]
-        for o in opts:
-            params.append(inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, annotation=Optional[o.kind],
-                                            default=typer.Option(None, o.flag, help=o.help, show_default=False)))
+        params += [_option_parameter(o) for o in opts]
+        if any(o.expert for o in opts):
+            params.append(inspect.Parameter("help_all", inspect.Parameter.KEYWORD_ONLY, annotation=bool, default=typer.Option(
+                False, "--help-all", is_eager=True, expose_value=False, callback=_show_all_help,
+                help="Show this message with the experimental and expert options, and exit.")))
         own_names = {p.name for p in own}
 
         def command(**kwargs):

@@ -1,6 +1,6 @@
 """``brfgs compare A B``: two evaluated models on the same held-out views, with bootstrap intervals.
 
-The library side is :mod:`brfgs.analysis.compare`; the body imports it lazily.
+The library side is :mod:`brfgs.evaluation.compare`; the body imports it lazily.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ def register(app: typer.Typer) -> None:
         """CIR PSNR margin (A − B, dB) and SAM ratio (A / B) over all views and per view ring, with 95 %
         intervals from a paired bootstrap over the views, and the range over seed pairs when several runs
         are given per side; with --scenes, per scene and pooled over the scenes."""
-        from brfgs.analysis import compare as C
-        from brfgs.analysis import compare_scenes as CS
+        from brfgs.evaluation import compare as C
+        from brfgs.evaluation import compare_scenes as CS
         from brfgs.data.atomic import write_json
 
         runs_a = [C.read_scores(r, split, against) for r in _runs(a)]

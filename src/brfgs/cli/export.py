@@ -1,4 +1,4 @@
-"""``brfgs export RUN OUT``: the Gaussians as a 3DGS PLY and the model file (brfgs.analysis.export)."""
+"""``brfgs export RUN OUT``: the Gaussians as a 3DGS PLY and the model file (brfgs.products.export)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ def export_cmd(
 ) -> None:
     """Export the Gaussians as a 3DGS PLY (full standard attribute set x y z nx ny nz f_dc_0..2 f_rest_0..44
     opacity scale_0..2 rot_0..3 with CIR colours, + BRF parameters) and the self-describing model file."""
-    from brfgs.analysis.export import VIEWER_TARGETS, ExportOptions, export_model
+    from brfgs.products.export import VIEWER_TARGETS, ExportOptions, export_model
     from brfgs.errors import UserError
 
     if target is not None and target not in VIEWER_TARGETS:

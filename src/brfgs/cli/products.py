@@ -1,4 +1,4 @@
-"""``brfgs products RUN``: per-pixel kernel products from nadir (brfgs.analysis.products_report)."""
+"""``brfgs products RUN``: per-pixel kernel products from nadir (brfgs.products.report)."""
 
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def products_cmd(
 ) -> None:
     """Per-pixel products from nadir: kernel contribution maps, NBAR, black/white-sky albedo, ANIX, and
     MODIS MCD43-style kernel weights (f_iso, f_vol, f_geo) with the NBAR and albedos computed from them."""
-    from brfgs.analysis.products_report import ProductsOptions, products_report
+    from brfgs.products.report import ProductsOptions, products_report
 
     opts = ProductsOptions(size=None if size is None else tuple(parse_floats(size, "--size")),
                            half_extent_m=half_extent, sun_zenith_deg=sun_zenith, nbar_sun_zenith_deg=nbar_sun_zenith,

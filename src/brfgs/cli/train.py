@@ -66,7 +66,7 @@ def register(app: typer.Typer) -> None:
         options: dict | None = None,
     ) -> None:
         """Train BRF-GS (or a baseline) on SCENE into OUT; rerun to resume; Ctrl-C keeps a checkpoint."""
-        from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
+        from brfgs.evaluation.evaluate import evaluate_run, metrics_file, summary_lines
         from brfgs.train.distributed import run_as_rank
         from brfgs.train.trainer import train_parallel, train_rank
 
@@ -104,7 +104,7 @@ def register(app: typer.Typer) -> None:
         per view ring and mean, with each held-out view's angle to the nearest training view; on simulated scenes
         also per material, with the rendered opacity and the ray-wise depth spread), ENVI renders and CIR
         comparison PNGs."""
-        from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
+        from brfgs.evaluation.evaluate import evaluate_run, metrics_file, summary_lines
 
         res = evaluate_run(out, scene, backend=backend, write_images=images, progress=not quiet, split=split)
         for line in summary_lines(res):

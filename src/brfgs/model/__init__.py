@@ -9,7 +9,7 @@ render path.
 Modules: gaussians.py (parameter container, initialisation), densify.py (split/clone/prune),
 optim.py (Adam over named tensors), camera.py (cameras, scene description), features.py
 (per-Gaussian features: stage-1 colours, the head's latent, geometry channels), rendering.py
-(rasterize + composite + decode: :func:`render`), trained.py (:class:`TrainedModel`),
+(rasterize, composite, decode: the pieces), view.py (:func:`render`), trained.py (:class:`TrainedModel`),
 io.py (safetensors files), schema.py (validation of model files).
 """
 
@@ -23,8 +23,8 @@ _EXPORTS = {
     "brfgs.model.densify_config": ("DensifyConfig",),
     "brfgs.model.gaussians": ("APPEARANCES", "GaussianModel", "init_from_points", "scene_extent", "surface_fill"),
     "brfgs.model.optim": ("NamedAdam",),
-    "brfgs.model.rendering": ("RenderedView", "render"),
-    "brfgs.model.trained": ("MODEL_FILE", "TrainedModel"),
+    "brfgs.model.view": ("RenderedView", "render"),
+    "brfgs.model.trained": ("MODEL_FILE", "RenderSettings", "TrainedModel"),
 }
 _WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
 __all__ = sorted(_WHERE)

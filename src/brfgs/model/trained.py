@@ -6,7 +6,7 @@ appearance head (:class:`brfgs.brdf.head.HeadConfig` or the neural head), the sp
 intrinsics, frames with poses and split; :func:`brfgs.model.camera.scene_description`) and the
 training options, stored as ``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON
 metadata with a schema version, validated on load by :mod:`brfgs.model.schema`; no code runs).
-:func:`brfgs.model.rendering.render` renders it from any camera.
+:func:`brfgs.model.view.render` renders it from any camera.
 """
 
 from __future__ import annotations
@@ -40,6 +40,27 @@ MODEL_FILE = "model.safetensors"
 def head_config_from_dict(d: dict) -> HeadConfig | None:
     """HeadConfig stored in a model file (None for the neural head)."""
     return None if d.get("kind") == "neural" else HeadConfig.from_dict(d)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How a model renders, fixed by how it was trained (a model is tied to its sampling).
+
+    decode_order: "pixel" (blend latents, decode each pixel) or "gaussian" (paper eq. 13: decode each
+    Gaussian, blend spectra); antialias: Mip-Splatting's 2D opacity compensation; supersample: sub-pixel
+    samples per pixel side (each pixel the mean of s x s samples).
+    """
+
+    decode_order: str = "pixel"
+    antialias: bool = False
+    supersample: int = 1
+
+    @classmethod
+    def from_training_options(cls, config: dict, spectral: bool = True) -> "RenderSettings":
+        """The settings of a model trained with the options ``config`` (a config.json dict; options it
+        predates take the value they had before they existed)."""
+        return cls(decode_order=str(config.get("decode", "pixel")) if spectral else "pixel",
+                   antialias=bool(config.get("antialias", False)), supersample=int(config.get("supersample", 1)))
 
 
 @dataclass
@@ -133,22 +154,10 @@ class TrainedModel:
     def bg_latent(self) -> Tensor | None:
         return self.extra.get("bg_latent") if self.spectral else None
 
-    @property
-    def decode_order(self) -> str:
-        """"pixel" (blend latents, decode pixels) or "gaussian" (eq. 13: decode Gaussians, blend
-        spectra), as trained (models older than the option: "pixel")."""
-        return str(self.config.get("decode", "pixel")) if self.spectral else "pixel"
-
-    @property
-    def antialiased(self) -> bool:
-        """Whether it was trained (and so renders) with Mip-Splatting's 2D filter (option ``antialias``)."""
-        return bool(self.config.get("antialias", False))
-
-    @property
-    def supersample(self) -> int:
-        """Sub-pixel samples per pixel side it was trained (and so renders) with (option
-        ``supersample``; models older than the option: 1)."""
-        return int(self.config.get("supersample", 1))
+    @cached_property
+    def render_settings(self) -> "RenderSettings":
+        """How the model renders: as it was trained (:class:`RenderSettings`)."""
+        return RenderSettings.from_training_options(self.config, self.spectral)
 
     def frame_sun(self, i: int) -> tuple[float, float]:
         """(zenith, azimuth) deg of training frame ``i``'s own sun (brfgs.data.sun), else the scene's."""

@@ -4,7 +4,7 @@
     cfg = preset("fast")                         # TrainConfig; presets fast | paper | tiny
     model_path = train(scene_dir, out_dir, cfg)  # resumes an unfinished out_dir
 
-Evaluation of a finished run is :func:`brfgs.analysis.evaluate.evaluate_run`; studies that train
+Evaluation of a finished run is :func:`brfgs.evaluation.evaluate.evaluate_run`; studies that train
 and evaluate several runs (ablations, the demo) are in :mod:`brfgs.workflows`.
 """
 

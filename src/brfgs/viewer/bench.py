@@ -60,7 +60,7 @@ def bench_viewer(model: str | Path | None = None, *, n_gaussians: int = 50_000, 
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
         rows[text] = {"median_s": statistics.median(wall), "all_s": wall, "median_cpu_s": statistics.median(cpu)}
-        if mode.needs_cube and tm.spectral and tm.decode_order != "gaussian":
+        if mode.needs_cube and tm.spectral and tm.render_settings.decode_order != "gaussian":
             rows[text]["decode"] = _decode_times(tm, c2w, intr, mode, backend, repeats)
     return {"machine": machine_record(backend, load_before),
             "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,

@@ -23,12 +23,13 @@ import torch
 from matplotlib import colormaps
 from torch import Tensor
 
-from brfgs.analysis.products import COMPONENT_ORDER, component_latents, require_hybrid
+from brfgs.products.maps import COMPONENT_ORDER, component_latents, require_hybrid
 from brfgs.data.cameras import Intrinsics
 from brfgs.data.cir import cir_composite
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
-from brfgs.model.rendering import RenderedView, composite_background
+from brfgs.model.rendering import composite_background
+from brfgs.model.view import RenderedView
 from brfgs.spectral.band_decode import decode_bands
 from brfgs.viewer.formula import NDVI, IndexFormula, parse_formula
 
@@ -124,7 +125,7 @@ def _spectral_view(tm: TrainedModel, cam, sun: tuple[float, float], bands: list[
     """(the render, reflectance planes [H, W, nb] in ``bands``): the latent rendered and only those
     bands decoded (:func:`brfgs.spectral.band_decode.decode_bands`, equal to the full decode); a
     model decoding per Gaussian (order "gaussian") decodes its whole cube."""
-    if tm.decode_order == "gaussian":
+    if tm.render_settings.decode_order == "gaussian":
         view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], backend=backend)
         return view, view.cube[..., bands]
     view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], decode=False, backend=backend)

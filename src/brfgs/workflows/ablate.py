@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.analysis.compare import (MIN_VIEWS_FOR_INTERVAL, N_RESAMPLES, compare_block, read_scores,
+from brfgs.evaluation.compare import (MIN_VIEWS_FOR_INTERVAL, N_RESAMPLES, compare_block, read_scores,
                                     require_same_views)
-from brfgs.analysis.evaluate import evaluate_run, metrics_file
+from brfgs.evaluation.evaluate import evaluate_run, metrics_file
 from brfgs.bands.select import STRATEGY_LABELS, TABLE2_STRATEGIES
 from brfgs.data import atomic
 from brfgs.data.paths import check_outside
@@ -108,7 +108,7 @@ def reference_run(study: str, name: str, names: set[str]) -> str | None:
 
 def versus(out: Path, name: str, ref: str | None, split: str, against: list[str]) -> dict:
     """Row fields: the PSNR margin (dB) and SAM ratio of run ``name`` against run ``ref`` on the same held-out
-    views of ``split``, with 95 % paired-bootstrap intervals over the views (:mod:`brfgs.analysis.compare`)."""
+    views of ``split``, with 95 % paired-bootstrap intervals over the views (:mod:`brfgs.evaluation.compare`)."""
     if ref is None:
         return {}
     row: dict = {"vs": ref}

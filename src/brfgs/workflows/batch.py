@@ -33,8 +33,8 @@ from typing import Callable
 
 import torch
 
-from brfgs.analysis.evaluate import evaluate_run, metrics_file, summary_lines
-from brfgs.analysis.products_report import ProductsOptions, products_report
+from brfgs.evaluation.evaluate import evaluate_run, metrics_file, summary_lines
+from brfgs.products.report import ProductsOptions, products_report
 from brfgs.data import atomic
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError

@@ -22,7 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from brfgs.analysis.bench import machine_record
-from brfgs.analysis.evaluate import evaluate_run
+from brfgs.evaluation.evaluate import evaluate_run
 from brfgs.errors import UserError
 from brfgs.model.io import load
 from brfgs.train import TrainConfig

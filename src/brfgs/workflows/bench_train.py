@@ -23,7 +23,7 @@ import numba
 import numpy as np
 import torch
 
-from brfgs.analysis.evaluate import evaluate_run
+from brfgs.evaluation.evaluate import evaluate_run
 from brfgs.spectral.autoencoder import AutoencoderConfig, train_autoencoder
 from brfgs.spectral.fast_decode import fast_decode, reference_decoding
 from brfgs.train import TrainConfig, train

@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
-from brfgs.analysis.evaluate import evaluate_run, summary_lines
+from brfgs.evaluation.evaluate import evaluate_run, summary_lines
 from brfgs.data import atomic
 from brfgs.model import MODEL_FILE
 from brfgs.train import preset, train

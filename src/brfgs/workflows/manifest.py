@@ -39,7 +39,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from brfgs.analysis.products_report import ProductsOptions
+from brfgs.products.report import ProductsOptions
 from brfgs.data.paths import inside
 from brfgs.errors import UserError
 from brfgs.train.config import TrainConfig

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.analysis import products as P
+from brfgs.products import maps as P
 from brfgs.model import camera_from_intrinsics
 from test_analysis_helpers import carpet_model
 

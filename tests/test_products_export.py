@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from brfgs.analysis.export import SH_C0, STANDARD_PROPERTIES, read_ply, write_ply
+from brfgs.products.export import SH_C0, STANDARD_PROPERTIES, read_ply, write_ply
 from brfgs.brdf.head import roughness_from_raw
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from test_analysis_helpers import carpet_model, write_model_file
@@ -92,7 +92,7 @@ def test_ply_has_the_full_standard_3dgs_attribute_set(tmp_path):
 def test_ply_sh_fit_reproduces_the_view_dependent_cir_colour(tmp_path):
     """A Ross-Thick + Li-Sparse carpet: the viewer's degree-3 SH colour for a view direction is the
     model's CIR colour for that direction (to the fit's accuracy), hotspot brighter than forward."""
-    from brfgs.analysis.export import _cir_of
+    from brfgs.products.export import _cir_of
     from brfgs.data.angles import direction_from_angles_deg
 
     bm = carpet_model(half_m=2.0, n_bands=4, z_left=[0.1, 0.2, 0.3, 0.4], z_right=[0.1, 0.2, 0.3, 0.4],
@@ -118,7 +118,7 @@ def test_ply_sh_fit_reproduces_the_view_dependent_cir_colour(tmp_path):
 def test_ply_frames_for_splat_viewers(tmp_path):
     """--up y / -y: positions, rotations, normals and SH colours are the ENU export's, rotated (and
     centred, scaled); SuperSplat's load rotation (180° about z) then puts the scene's up at +y."""
-    from brfgs.analysis.export import PlyFrame, ply_frame
+    from brfgs.products.export import PlyFrame, ply_frame
     from brfgs.data.angles import direction_from_angles_deg
     from brfgs.render.geometry import quat_to_rotmat
 

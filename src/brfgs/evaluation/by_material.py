@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from brfgs.analysis.metrics import spectral_angle
+from brfgs.evaluation.metrics import spectral_angle
 from brfgs.analysis.roi import read_materials_json
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, render

@@ -5,7 +5,7 @@ not per-scene tuning"). ``brfgs compare A1,A2,... B1,B2,... --scenes`` pairs the
 pair per scene (A_i and B_i trained on scene i with the same split), and reports:
 
 - each scene's PSNR margin and SAM ratio with its paired-bootstrap interval
-  (:func:`brfgs.analysis.compare.compare_block`: what ``brfgs compare A_i B_i --seed SEED+i`` prints);
+  (:func:`brfgs.evaluation.compare.compare_block`: what ``brfgs compare A_i B_i --seed SEED+i`` prints);
 - the pooled margin, the mean over scenes of the per-scene margins (each scene weighs the same,
   whatever its number of views), and the pooled SAM ratio, the geometric mean over scenes of the
   per-scene ratios;
@@ -18,7 +18,7 @@ pair per scene (A_i and B_i trained on scene i with the same split), and reports
   every scene has at least 2 views in the ring (one view has no spread to resample).
 
 Several pairs of one scene (the same scene folder) are training seeds of both settings: each side's
-per-view scores are averaged over them (:func:`brfgs.analysis.compare.seed_mean`, as ``brfgs compare
+per-view scores are averaged over them (:func:`brfgs.evaluation.compare.seed_mean`, as ``brfgs compare
 A1,A2 B1,B2`` does) and the scene counts once, so a scene with more seeds weighs no more, and its
 views' bootstrap draw is shared by its seeds.
 """
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from brfgs.analysis.compare import (
+from brfgs.evaluation.compare import (
     MIN_VIEWS_FOR_INTERVAL,
     N_RESAMPLES,
     TABLE_HEAD,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.analysis import compare as C
+from brfgs.evaluation import compare as C
 from brfgs.errors import UserError
 
 
@@ -166,7 +166,7 @@ def _scene_pair(rng, n, shift_db, ratio, rings=None):
 
 
 def test_pooled_statistics_match_a_loop_over_the_stratified_draws():
-    from brfgs.analysis import compare_scenes as CS
+    from brfgs.evaluation import compare_scenes as CS
     rng = np.random.default_rng(5)
     pairs = [_scene_pair(rng, n, d, r) for n, d, r in [(7, 0.5, 0.9), (5, -0.2, 1.1), (9, 0.1, 1.0)]]
     res = CS.compare_scenes([a for a, _ in pairs], [b for _, b in pairs], n_resamples=400, seed=3)
@@ -193,7 +193,7 @@ def test_pooled_statistics_match_a_loop_over_the_stratified_draws():
 
 
 def test_pooled_rows_weigh_scenes_equally_and_tally_the_verdicts():
-    from brfgs.analysis import compare_scenes as CS
+    from brfgs.evaluation import compare_scenes as CS
     rings = ["18", "18", "58", "58", "58"]
     b1 = _scores([30, 31, 25, 26, 24], [0.03, 0.02, 0.05, 0.04, 0.06], rings)
     b2 = _scores([28, 29, 27, 22, 23, 21, 20, 24, 25], [0.03] * 9, ["18", "18"] + ["58"] * 7)
@@ -221,7 +221,7 @@ def test_pooled_rows_weigh_scenes_equally_and_tally_the_verdicts():
 
 
 def test_seeds_of_one_scene_are_averaged_and_the_scene_counts_once():
-    from brfgs.analysis import compare_scenes as CS
+    from brfgs.evaluation import compare_scenes as CS
     rng = np.random.default_rng(8)
     s1 = [_scene_pair(rng, 7, d, r) for d, r in [(0.6, 0.9), (0.2, 1.0)]]  # two training seeds of scene "s1"
     s2 = _scene_pair(rng, 5, -0.3, 1.1)

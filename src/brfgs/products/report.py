@@ -1,13 +1,13 @@
 """``brfgs products``: per-pixel kernel products from nadir, written as ENVI cubes, PNGs and JSON.
 
-:func:`products_report` renders the products of :func:`brfgs.analysis.products.render_products`
-with a nadir camera over the scene (:func:`brfgs.analysis.products.nadir_camera`) and writes one
+:func:`products_report` renders the products of :func:`brfgs.products.maps.render_products`
+with a nadir camera over the scene (:func:`brfgs.products.maps.nadir_camera`) and writes one
 ENVI cube and one PNG per product (CIR composites for reflectances, a colour-mapped band near
 860 nm for the contributions and ANIX), alpha.npy and products.json (settings, camera, per-product
 mean at that band, optionally the decoder check). With ``mcd43`` (the default) also the MODIS
 MCD43-style parameters f_iso, f_vol, f_geo per pixel and band fitted to the model's BRF, the fit's
 RMSE, and NBAR / black-sky / white-sky albedo computed from them as MCD43 does
-(:mod:`brfgs.analysis.mcd43_maps`).
+(:mod:`brfgs.products.mcd43_maps`).
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from brfgs.analysis import plots
-from brfgs.analysis import products as P
+from brfgs.products import maps as P
 from brfgs.analysis.brf import auto_roi_size
-from brfgs.analysis.georaster import MapGrid, envi_map_info, map_camera, map_grid, write_geotiff
-from brfgs.analysis.mcd43_maps import MCD43_NAMES, render_mcd43
+from brfgs.products.georaster import MapGrid, envi_map_info, map_camera, map_grid, write_geotiff
+from brfgs.products.mcd43_maps import MCD43_NAMES, render_mcd43
 from brfgs.analysis.options import check_size
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
 from brfgs.analysis.views import check_zenith_deg, intrinsics_json

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from brfgs.analysis import metrics as M
+from brfgs.evaluation import metrics as M
 
 
 def test_psnr_hand_computed():

@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from brfgs.analysis.products import _MapRenderer, require_hybrid
+from brfgs.products.maps import _MapRenderer, require_hybrid
 from brfgs.brdf import mcd43 as M
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.model import Camera, TrainedModel
@@ -49,7 +49,7 @@ def render_mcd43(
     batch: int = 8,
     progress: bool = False,
 ) -> dict:
-    """MCD43-style maps for one camera (usually :func:`brfgs.analysis.products.nadir_camera`).
+    """MCD43-style maps for one camera (usually :func:`brfgs.products.maps.nadir_camera`).
 
     Returns {name: [H, W, B] float32} for :data:`MCD43_NAMES`, "alpha" [H, W], and "settings"
     (the grid, its number of directions, the condition number of AᵀA). NaN where alpha < min_alpha.

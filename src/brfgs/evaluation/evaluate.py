@@ -18,8 +18,8 @@ import numpy as np
 
 from tqdm import tqdm
 
-from brfgs.analysis import by_material
-from brfgs.analysis import metrics as M
+from brfgs.evaluation import by_material
+from brfgs.evaluation import metrics as M
 from brfgs.analysis.output import SPLITS, metrics_file
 from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
@@ -67,7 +67,7 @@ def _references(scene, i: int) -> dict:
 
 def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.ndarray, ref_cir: np.ndarray,
                      ok: np.ndarray) -> dict | None:
-    """Per-material pixels of view ``i`` against the truth (:func:`brfgs.analysis.by_material.view_pixels`),
+    """Per-material pixels of view ``i`` against the truth (:func:`brfgs.evaluation.by_material.view_pixels`),
     or None when the scene has no material maps for it."""
     if r.cir is None:
         return None
@@ -140,7 +140,7 @@ def ring_means(views: list[dict], rings: dict[str, str]) -> dict:
 
 def material_means(by_view: dict[str, dict], rings: dict[str, str], names: dict[int, str]) -> dict:
     """{"definitions", "mean": {material: stats}, "rings": {ring: {material: stats}}} pooled over the
-    views (:func:`brfgs.analysis.by_material.summarise`) of per-material pixels ``by_view`` (name -> pixels)."""
+    views (:func:`brfgs.evaluation.by_material.summarise`) of per-material pixels ``by_view`` (name -> pixels)."""
     ring_of = {r: [v for n, v in by_view.items() if rings[n] == r] for r in sorted({rings[n] for n in by_view}, key=float)}
     return {"definitions": by_material.DEFINITIONS, "mean": by_material.summarise(list(by_view.values()), names),
             "rings": {r: by_material.summarise(v, names) for r, v in ring_of.items()}}

@@ -1,4 +1,4 @@
-"""Accuracy by material (brfgs.analysis.by_material): pooled statistics against a per-pixel loop,
+"""Accuracy by material (brfgs.evaluation.by_material): pooled statistics against a per-pixel loop,
 pure-pixel blocks, the ray depth spread of a two-layer carpet against its closed form, and the
 ``materials`` block that ``brfgs evaluate`` writes for a scene with material maps."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.analysis import by_material as BM
+from brfgs.evaluation import by_material as BM
 from brfgs.model import render
 from test_analysis_helpers import carpet_model
 
