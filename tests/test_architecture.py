@@ -139,7 +139,7 @@ def test_imports_inside_functions_only_for_heavy_optional_dependencies():
 
 
 def test_code_shape_limits():
-    spec = importlib.util.spec_from_file_location("check_code_shape", SRC.parents[1] / "scripts" / "check_code_shape.py")
+    spec = importlib.util.spec_from_file_location("check_code_shape", Path(__file__).parent / "code_shape.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     assert mod.violations(SRC) == []

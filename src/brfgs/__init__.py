@@ -3,4 +3,4 @@
 Implements BRF-GS (see docs/architecture.md for the flow of one scene through the package).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"

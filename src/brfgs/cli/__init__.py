@@ -61,8 +61,17 @@ COMMAND_MODULES = [
 
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from brfgs import __version__
+
+        typer.echo(f"brfgs {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(version: bool = typer.Option(False, "--version", is_eager=True, callback=_print_version,
+                                       help="Print the version and exit.")) -> None:
     """Hyperspectral BRF modelling with 3D Gaussian splatting (BRF-GS)."""
 
 

@@ -4,7 +4,7 @@ over 12 parameters. Numba kernels (decorated with ``njit``/``jit``) are exempt; 
 functions (Typer commands in ``cli/``) are exempt from the parameter count only (each option is a
 parameter). Exit 1 when anything is listed.
 
-    python3 scripts/check_code_shape.py [SRC_DIR]
+    python3 tests/code_shape.py [SRC_DIR]
 """
 
 from __future__ import annotations
