@@ -33,7 +33,7 @@ HEADER_NUMBERS = ("lines", "samples", "bands", "header offset", "data type", "by
 
 
 def make_base_scene(root: Path) -> Path:
-    """A valid tiny scene in the conventions.md layout (ENVI cubes, two dark frames)."""
+    """A valid tiny scene in the docs/data-format.md layout (ENVI cubes, two dark frames)."""
     from brfgs.data.cameras import Intrinsics, pose_from_view_angles
     from brfgs.data.cube_io import write_envi
 

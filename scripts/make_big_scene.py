@@ -1,5 +1,5 @@
-"""Upsample a simulated scene's cubes by an integer factor into a large synthetic scene on disk (issue 17:
-the memory of training on 49 views of 1024² × 164-band cubes).
+"""Upsample a simulated scene's cubes by an integer factor into a large synthetic scene on disk (to
+measure the memory of training on 49 views of 1024² × 164-band cubes).
 
     python scripts/make_big_scene.py /tmp/scenes/ts128 /tmp/big1024 --factor 8
 

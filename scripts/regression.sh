@@ -13,6 +13,7 @@ old=$(cd "${1:?usage: bash scripts/regression.sh OLD_CHECKOUT [NEW_CHECKOUT] [OU
 new=$(cd "${2:-$(dirname "$0")/..}" && pwd)
 out=${3:-$(mktemp -d -t brfgs-regression-XXXX)}
 PY=${PYTHON:-python3}
+mkdir -p "$out"
 
 runs() {  # runs CHECKOUT DIR: the tiny runs of one checkout
   local src=$1 dir=$2
@@ -42,7 +43,7 @@ import torch
 from safetensors.torch import load_file
 
 SKIP = {"allow_outside_links", "backend", "eval_seconds", "train_timings_s", "timings_s", "scene_root", "root",
-        "seconds", "simulation_seconds"}
+        "seconds", "simulation_seconds", "config"}  # the options as each version records them
 
 def strip(o):
     if isinstance(o, dict):

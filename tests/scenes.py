@@ -1,4 +1,4 @@
-"""Small scenes made on the fly for tests (conventions.md layout, ENVI cubes)."""
+"""Small scenes made on the fly for tests (docs/data-format.md layout, ENVI cubes)."""
 
 from __future__ import annotations
 

@@ -171,7 +171,7 @@ def test_reading_scenes_does_not_load_pvlib_pandas_or_pyproj():
 
 def test_the_command_line_and_its_option_modules_start_without_torch():
     """`brfgs --help` and every command's option parsing import the CLI and the option dataclasses only
-    (docs/architecture.md): torch (seconds to import) loads when a command runs. Session 19's
+    (docs/architecture.md): torch (seconds to import) loads when a command runs. The
     `--supersample` limit once pulled it into train/config.py through render/."""
     import subprocess
 

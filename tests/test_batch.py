@@ -72,8 +72,9 @@ out = "elsewhere/a2"
 num_cpus = 2
 threads = 1
 products = false
-[scene.densify]
 max_gaussians = 999
+[scene.densify]
+refine_every = 11
 """)
     man = read_manifest(m)
     a, b = man.scenes
@@ -85,7 +86,8 @@ max_gaussians = 999
     assert a.products == {"size": (16,), "mcd43": False, "check_decoder": False}
     assert b.out == tmp_path / "jobs" / "elsewhere" / "a2" and b.products is None
     assert b.num_cpus == 2 and b.config["threads"] == 1                            # given threads win
-    assert b.config["densify"]["max_gaussians"] == 999 and b.config["densify"]["refine_every"] == 10
+    assert b.config["max_gaussians"] == 999 and b.config["densify"]["refine_every"] == 11
+    assert b.config["densify"]["reset_every"] == 1000                                # the rest from the preset
     assert read_manifest(m, out=tmp_path / "o").out == tmp_path / "o"             # --out overrides
     # JSON (a plain list of scenes) and YAML give the same scenes
     j = _write(tmp_path / "jobs" / "list.json", json.dumps([{"scene": "../data/a", "preset": "tiny", "seed": 3}]))

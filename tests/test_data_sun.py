@@ -117,7 +117,7 @@ def test_learned_irradiance_scale_finds_the_brighter_frame(tmp_path):
     hdr = root / meta["frames"][4]["file_path"]
     img = np.asarray(envi.open(str(hdr), str(hdr.with_suffix(".img"))).load(), np.float32)
     write_envi(hdr, img * 1.25, meta["wavelengths_nm"])
-    # 60 stage-1 steps: with stage-1 kernels (the default since Session 35) 30 leave a geometry on which
+    # 60 stage-1 steps: with stage-1 kernels (the default) 30 leave a geometry on which
     # the brighter frame's scale only reaches 1.03 (1.16 at 60 steps, 1.15 with flat stage-1 colours at 30)
     args = ["--preset", "tiny", "--stage1-steps", "60", "--stage2-steps", "80", "--threads", "1", "--quiet",
             "--no-evaluate", "--learn-irradiance", "--lr-irradiance", "0.05"]

@@ -21,7 +21,7 @@ def _scores(psnr, sam, rings=None, views=None, label="run"):
 
 
 def _metrics(views: list[tuple[str, str, float, float]], truth: bool = True, scene: str = "s") -> dict:
-    """A metrics.json in the schema of conventions.md: (name, ring, psnr, sam) per view."""
+    """A metrics.json in the schema of docs/data-format.md: (name, ring, psnr, sam) per view."""
     rings: dict = {}
     for name, ring, _, _ in views:
         rings.setdefault(ring, {"train": [], "test": []})["test"].append(name)

@@ -119,7 +119,7 @@ def test_bench_view_times_both_decoders_in_one_run(tmp_path):
     from brfgs.cli import main
 
     out = tmp_path / "view.json"
-    assert main(["bench", "view", "--gaussians", "400", "--size", "16", "--size", "24", "--repeats", "1",
+    assert main(["bench", "view", "--gaussians", "400", "--size", "16,24", "--repeats", "1",
                  "--threads", "1", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert [v["size"] for v in res["views"]] == [[16, 16], [24, 24]] and res["bands"] == 164

@@ -132,3 +132,24 @@ def test_scene_origin_reaches_the_model_and_bad_origin_exits_2(tmp_path, capsys)
     assert "origin.longitude_deg" in err and "transforms.json" in err and "Traceback" not in err
     with pytest.raises(UserError, match="origin"):
         SimConfig.tiny(origin=(95.0, 0.0)).validate()
+
+
+def test_envi_map_info_names_the_utm_zone_for_any_proj_datum_name():
+    """PROJ 9.5 names WGS 84's datum "World Geodetic System 1984 ensemble": the UTM zone and hemisphere
+    come from the EPSG code, or from the zone and a datum name that starts with WGS 84's."""
+    from types import SimpleNamespace
+
+    from pyproj import CRS
+
+    from brfgs.products.georaster import MapGrid, envi_map_info, utm_zone_of
+
+    assert utm_zone_of(CRS.from_epsg(32632)) == (32, "North")
+    assert utm_zone_of(CRS.from_epsg(32755)) == (55, "South")
+    for name in ("World Geodetic System 1984", "World Geodetic System 1984 ensemble"):
+        fake = SimpleNamespace(to_epsg=lambda: None, utm_zone="33S", datum=SimpleNamespace(name=name))
+        assert utm_zone_of(fake) == (33, "South")
+    other = SimpleNamespace(to_epsg=lambda: None, utm_zone="33N", datum=SimpleNamespace(name="European Terrestrial"))
+    assert utm_zone_of(other) is None and utm_zone_of(CRS.from_epsg(3857)) is None
+    info = envi_map_info(MapGrid(crs="EPSG:32632", upper_left=(500000.0, 5330000.0), pixel_size=0.5, width=4,
+                                 height=4, max_affine_residual_m=0.0))["map info"]
+    assert info[0] == "UTM" and info[7:9] == ["32", "North"]

@@ -137,7 +137,24 @@ def test_sfm_failure_is_a_user_error(tmp_path):
     with pytest.raises(UserError) as err:
         initialize(sc, [1], poses="sfm")
     msg = str(err.value)
-    assert "--poses known" in msg and "v000" in msg and "SfM failed" in msg
+    assert "--poses known" in msg and "v000" in msg and "SfM failed" in msg and "too little texture" in msg
+    # with the known poses a texture-less scene starts from the ground plane the cameras look at
+    res = initialize(sc, [1], poses="known")
+    assert "too little texture" in res.report["fallback"] and len(res.points) >= 100
+    assert np.abs(res.points[:, 2] - np.median(res.points[:, 2])).max() < 1e-6  # one horizontal plane
+
+
+def test_the_plane_start_lies_where_the_cameras_look():
+    from brfgs.data.cameras import Intrinsics, pose_from_view_angles
+    from brfgs.init.plane import look_at_point, plane_arrays
+
+    target = np.array([2.0, -3.0, 5.0])
+    c2w = np.stack([pose_from_view_angles(z, a, 60.0) for z, a in ((0, 0), (30, 0), (30, 120), (30, 240))])
+    c2w[:, :3, 3] += target
+    np.testing.assert_allclose(look_at_point(c2w), target, atol=1e-9)
+    arr = plane_arrays(c2w, Intrinsics.from_fov(35.0, 32, 24))
+    assert len(arr.points) > 50 and np.allclose(arr.points[:, 2], 5.0) and (arr.track_len >= 2).all()
+    assert len(arr.obs_point) == arr.track_len.sum() and arr.obs_point.max() == len(arr.points) - 1
 
 
 def test_auto_uses_sfm_for_nominal_poses(tmp_path):

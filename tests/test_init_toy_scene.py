@@ -1,6 +1,6 @@
 """A tiny self-made multi-angle hyperspectral scene for the band-selection and init tests.
 
-``make_toy_scene`` writes a scene folder (conventions.md layout) of a textured height field
+``make_toy_scene`` writes a scene folder (docs/data-format.md layout) of a textured height field
 seen from the paper's view angles: ground truth is analytic, so tests know the surface,
 the cameras and which bands are noisy. Also writes ``truth/depth/<name>.npy`` (metres
 along the optical axis) like the simulator. The tests at the bottom check the builder.

@@ -15,9 +15,11 @@ from brfgs.data import read_scene
 from brfgs.errors import UserError
 from brfgs.data.splits import apportion, assign_split, nearest_view_angle_deg, spread_pick, stratified_pick, view_rings, \
     view_spacing_deg
-from brfgs.model import TrainedModel, render
+from brfgs.data.splits import split_rule_of
+from brfgs.model import RenderSettings, TrainedModel, render
 from brfgs.cli.train import build_config
 from brfgs.train.config import TrainConfig
+from brfgs.train.config_format import REMOVED
 from brfgs.train.presets import ADDITIONS, FINE, PAPER_METHOD, PRESETS, preset
 from brfgs.workflows.ablate import _runs
 from test_train_scene import make_plane_scene
@@ -96,8 +98,8 @@ def test_spread_split_holds_out_no_neighbours(seed):
 
 
 def test_split_rules_and_old_runs(tmp_path):
-    """``random`` is the rule before Session 30, exactly; a run folder written before the option existed
-    reads back with it, so its test views stay its test views."""
+    """``random`` is the rule of models of format 1 that name it or predate the option, exactly: their
+    test views stay their test views; today's models are split by ``spread``."""
     class F:
         def __init__(self, z, a):
             self.view_zenith_deg, self.view_azimuth_deg, self.split, self.split_given = z, a, "", False
@@ -109,20 +111,9 @@ def test_split_rules_and_old_runs(tmp_path):
     assert [i for i, f in enumerate(frames) if f.split == "test"] == test
     train = [i for i in range(49) if i not in test]
     assert [i for i, f in enumerate(frames) if f.split == "validation"] == stratified_pick(train, rings, 7, 4)
-    old = tmp_path / "config.json"
-    written = json.loads(TrainConfig().to_json())
-    assert written["split_rule"] == "spread"
-    old.write_text(json.dumps({k: v for k, v in written.items() if k != "split_rule"}))
-    assert TrainConfig.from_run_config(old).split_rule == "random"
-    # until Session 41 the joint phase trained on 2,048-pixel patches: options written without it keep them
-    old.write_text(json.dumps({k: v for k, v in written.items() if k not in ("patch_rays", "stage2_rays")}))
-    assert TrainConfig.from_run_config(old).patch_rays == 2048
-    # before Session 37 stage2_rays also sized the joint phase's patches: an old folder keeps them
-    old.write_text(json.dumps({**{k: v for k, v in written.items() if k != "patch_rays"}, "stage2_rays": 4096}))
-    back = TrainConfig.from_run_config(old)
-    assert (back.patch_rays, back.stage2_rays) == (4096, 4096)
-    with pytest.raises(UserError, match="split_rule"):
-        TrainConfig(split_rule="nearest").validate()
+    written = TrainConfig().to_dict()
+    assert "split_rule" not in written and split_rule_of(written) == "spread"
+    assert split_rule_of({"split_rule": "spread"}) == "spread" and split_rule_of({}) == "random"
     with pytest.raises(UserError, match="split rule"):
         read_scene(make_plane_scene(tmp_path / "s", w=8, h=6, n_bands=4, n_views=13), split_rule="nearest")
 
@@ -135,7 +126,7 @@ def test_head_learning_rates_decay_log_linearly_over_the_phase():
     from brfgs.train.schedule import learning_rates
 
     const, cfg = preset("fast", lr_head_final=1.0), preset("fast", lr_head_final=0.1, head_lr_decay_from=0.0)
-    assert (preset("fast").lr_head_final, preset("fast").head_lr_decay_from) == (0.1, 0.75)  # since Session 38
+    assert (preset("fast").lr_head_final, preset("fast").head_lr_decay_from) == (0.1, 0.75)
     for phase, steps in ((Phase.STAGE2, 40), (Phase.JOINT, 40)):
         start = learning_rates(const, phase, 0, steps, 10.0)
         for step in (0, 10, 40):
@@ -156,20 +147,33 @@ def test_head_learning_rates_decay_log_linearly_over_the_phase():
 
 
 def test_config_file_predating_options_reruns_with_their_values_of_then(tmp_path):
-    """``brfgs train --config RUN/config.json`` reads a config.json written before an option existed as
-    the run folder does: the option takes its value of then, not today's default; a full file is kept."""
-    written = json.loads(TrainConfig().to_json())
+    """``brfgs train --config RUN/config.json`` reads a config.json of format 1 (brfgs 0.1) as the run
+    folder does: an option the file predates takes its value of then, not today's default; a removed
+    option at its neutral value is dropped, one that was on is refused naming it; today's file is kept."""
     old = tmp_path / "config.json"
-    gone = {"dssim_per_band", "stage1_kernels", "patch_rays", "lr_head_final", "head_lr_decay_from"}
-    old.write_text(json.dumps({**{k: v for k, v in written.items() if k not in gone}, "stage2_rays": 4096}))
+    fmt1 = {**{k: v for k, v in TrainConfig().to_dict().items() if k not in ("format_version", "strategy", "mcmc",
+                                                                          "max_gaussians")},
+            "densify": {**TrainConfig().to_dict()["densify"], "mode": "adc", "max_gaussians": 777, "mcmc_growth": 0.05},
+            **{k: (0.2 if v is None else v) for k, v in REMOVED.items()}}  # as brfgs 0.1 wrote them
+    gone = {"dssim_per_band", "stage1_kernels", "lr_head_final", "head_lr_decay_from"}
+    old.write_text(json.dumps({k: v for k, v in fmt1.items() if k not in gone}))
     cfg = build_config({}, old)
-    assert (cfg.dssim_per_band, cfg.stage1_kernels, cfg.patch_rays, cfg.stage2_rays) == (False, False, 4096, 4096)
-    assert (cfg.lr_head_final, cfg.head_lr_decay_from) == (1.0, 0.0)  # constant head rates before Session 38
+    assert (cfg.dssim_per_band, cfg.stage1_kernels, cfg.max_gaussians, cfg.strategy) == (False, False, 777, "adc")
+    assert (cfg.lr_head_final, cfg.head_lr_decay_from) == (1.0, 0.0)  # constant head rates before the option
     assert cfg == TrainConfig.from_run_config(old)
-    cfg = build_config({("patch_rays",): 512}, old)  # the command line still overrides the file
-    assert (cfg.patch_rays, cfg.stage2_rays) == (512, 4096)
+    assert build_config({("max_gaussians",): 512}, old).max_gaussians == 512  # the command line overrides the file
+    for removed, value in (("far_field_plane", True), ("refine_steps", 300), ("split_rule", "random")):
+        old.write_text(json.dumps({**fmt1, removed: value}))
+        with pytest.raises(UserError, match=removed):
+            build_config({}, old)
+    old.write_text(json.dumps({**fmt1, "densify": {**fmt1["densify"], "mode": "mcmc", "mcmc_growth": 0.2}}))
+    cfg = build_config({}, old)
+    assert (cfg.strategy, cfg.mcmc.growth, cfg.mcmc.refine_every) == ("mcmc", 0.2, fmt1["densify"]["refine_every"])
     old.write_text(TrainConfig().to_json())
     assert build_config({}, old) == TrainConfig()
+    old.write_text(json.dumps({**TrainConfig().to_dict(), "format_version": 3}))
+    with pytest.raises(UserError, match="format"):
+        build_config({}, old)
 
 
 def test_nearest_view_angle_against_the_spherical_law_of_cosines():
@@ -240,7 +244,7 @@ def test_paper_preset_is_the_published_method():
         for k, v in add.paper.items():
             assert getattr(p, k) == v, (name, k)
             assert getattr(f, k) != v, f"the fast preset should have addition {name} on ({k})"
-    assert p.decode == "gaussian" and not p.learn_normals and p.stage1_sh_degree == 0
+    assert p.decode == "gaussian" and not p.learn_normals
     assert p.lambda_normal == p.lambda_flat == p.lambda_depth_smooth == 0
     assert p.lr_spec == p.lr_latent and not p.stage1_cir_bands
     fast_paper = preset("paper-fast")
@@ -380,45 +384,6 @@ def test_validation_split_needs_a_validation_run(trained, tmp_path, capsys):
     assert "--validation" in capsys.readouterr().err
 
 
-# --------------------------------------------------------------------------- far field
-def test_ground_height_is_the_surface_through_the_points():
-    from brfgs.train.far_field import ground_height
-    rng = np.random.default_rng(0)
-    xy = rng.uniform(-10, 10, (50, 2))
-    pts = np.c_[xy, 2.0 + 0.1 * xy[:, 0] - 0.05 * xy[:, 1]]  # a tilted plane
-    q = np.array([[0.0, 0.0], [3.0, -4.0], [100.0, 0.0]])
-    z = ground_height(pts, q)
-    np.testing.assert_allclose(z[:2], 2.0 + 0.1 * q[:2, 0] - 0.05 * q[:2, 1], atol=1e-9)
-    far = pts[np.argmin(np.linalg.norm(xy - q[2], axis=1)), 2]
-    assert z[2] == pytest.approx(far)  # outside the hull: the nearest point's height
-
-
-def test_visibility_fraction_counts_the_cameras_that_see_a_point():
-    from brfgs.model.camera import camera_from_intrinsics
-    from brfgs.data.cameras import Intrinsics, pose_from_view_angles
-    from brfgs.train.far_field import visibility_fraction
-    intr = Intrinsics.from_fov(30.0, 32, 32)
-    cams = [camera_from_intrinsics(pose_from_view_angles(z, a, 50.0), intr) for z, a in ((0, 0), (40, 0), (40, 180))]
-    means = torch.tensor([[0.0, 0.0, 0.0], [0.0, -20.0, 0.0], [0.0, 0.0, 80.0]])
-    frac = visibility_fraction(means, cams)
-    assert frac[0] == 1.0  # the centre: every view
-    assert 0 < frac[1] < 1  # off to one side: some views
-    assert frac[2] == 0.0  # behind/above every camera
-
-
-def test_far_field_gaussians_stay_on_the_ground(trained, tmp_path):
-    scene, _ = trained
-    out = tmp_path / "ff"
-    assert main(["train", str(scene), str(out), "--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "4",
-                 "--far-field-plane", "--threads", "1", "--quiet", "--no-evaluate"]) == 0
-    tm = TrainedModel.load(out / "model.safetensors")
-    p = tm.gaussians.params
-    far = p["far"] > 0.5
-    assert far.any() and (~far).any()
-    np.testing.assert_array_equal(p["means"][far, 2].detach().numpy(), p["far_ground_z"][far].detach().numpy())
-    assert np.isfinite(render(tm, tm.cameras[0], backend="torch").cube).all()
-
-
 def test_antialiased_model_trains_and_renders_with_the_filter(trained, tmp_path):
     """--antialias is a model property: it trains with the filter and renders with it (less alpha
     than the same model rendered without the opacity compensation)."""
@@ -429,7 +394,7 @@ def test_antialiased_model_trains_and_renders_with_the_filter(trained, tmp_path)
     tm = TrainedModel.load(out / "model.safetensors")
     assert tm.render_settings.antialias and json.loads((out / "config.json").read_text())["antialias"] is True
     with_filter = render(tm, tm.cameras[0], backend="torch")
-    tm.config["antialias"] = False
+    tm.render_settings = RenderSettings(decode_order=tm.render_settings.decode_order, antialias=False)
     without = render(tm, tm.cameras[0], backend="torch")
     assert np.isfinite(with_filter.cube).all()
     assert with_filter.alpha.sum() < without.alpha.sum()
@@ -459,36 +424,6 @@ def test_table2_runs_fit_the_selected_bands_only_in_stage_1():
     assert all(not cfg.stage1_cir_bands for _, _, cfg, _ in runs)
     # every other option as given: the paper's tables with the paper's method come from --preset paper-fast
     assert all(cfg.lr_spec == 1e-2 for _, _, cfg, _ in _runs("kernels", preset("paper-fast")))
-
-
-def test_refinement_moves_geometry_and_head_without_densifying(trained, tmp_path):
-    """--refine-steps: after stage 2 a third phase trains the geometry and the head together on all
-    bands, with no densification (the Gaussian count stays), at the rates stage 1 ended with times
-    --refine-lr-scale; the refined model differs from stage 2's end in its means and latents."""
-    from brfgs.train.phases import Phase, plan
-    from brfgs.train.schedule import learning_rates, means_lr
-    cfg = preset("tiny", refine_steps=5, refine_lr_scale=0.5)
-    assert [p for p, _ in plan("brf", False, 3, 4, 5)] == [Phase.STAGE1, Phase.STAGE2, Phase.REFINE]
-    assert [p for p, _ in plan("brf", True, 3, 4, 5)] == [Phase.JOINT]
-    lrs = learning_rates(cfg, Phase.REFINE, 0, 5, 10.0)
-    assert lrs["means"] == pytest.approx(0.5 * means_lr(cfg, 5, 5, 10.0))
-    assert lrs["opacity_logits"] == pytest.approx(0.5 * cfg.lr_opacity) and lrs["z_iso"] == cfg.lr_latent
-    assert Phase.REFINE.trains_geometry and Phase.REFINE.fits_head and not Phase.REFINE.grows
-    scene, _ = trained
-    base, ref = tmp_path / "base", tmp_path / "ref"
-    args = ["--preset", "tiny", "--stage1-steps", "20", "--stage2-steps", "6", "--threads", "1", "--quiet", "--no-evaluate"]
-    assert main(["train", str(scene), str(base), *args]) == 0
-    assert main(["train", str(scene), str(ref), *args, "--refine-steps", "6"]) == 0
-    rows = [r.split(",") for r in (ref / "train_log.csv").read_text().splitlines()[1:]]
-    refine = [r for r in rows if r[0] == "refine"]
-    assert [int(r[1]) for r in refine] == list(range(1, 7))
-    assert len({r[4] for r in refine}) == 1 and refine[0][4] == [r for r in rows if r[0] == "stage2"][-1][4]
-    a, b = (TrainedModel.load(p / "model.safetensors").gaussians.params for p in (base, ref))
-    assert not torch.equal(a["means"], b["means"]) and not torch.equal(a["z_iso"], b["z_iso"])
-    assert json.loads((ref / "run.json").read_text())["timings_s"]["refine"] > 0
-    assert main(["train", str(scene), str(tmp_path / "bad"), "--refine-steps", "-1", "--quiet"]) == 2
-    with pytest.raises(UserError, match="refine_steps"):
-        preset("tiny", refine_steps=-1)
 
 
 def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
@@ -526,7 +461,7 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
         return stage1_colors(gm64, cam, sun.double())
     leaves = [params[name].double().requires_grad_(True) for name in ("means", "colors", "colors_kernels")]
     assert torch.autograd.gradcheck(colours64, leaves, eps=1e-6, atol=1e-6)
-    p = tm.gaussians.params  # the default (an addition since Session 35) trains them
+    p = tm.gaussians.params  # the default (an addition) trains them
     assert p["colors_kernels"].shape[1:] == (2, p["colors"].shape[1]) and p["colors_kernels"].abs().sum() > 0
     scene, _ = trained
     out = tmp_path / "flat"  # the paper's view-independent stage-1 colours
@@ -536,11 +471,10 @@ def test_stage1_kernel_colours_follow_the_kernels(trained, tmp_path):
     assert not preset("paper").stage1_kernels and not preset("paper-fast").stage1_kernels
 
 
-def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():
-    """Stage 2 (pixel decode) renders the whole 64 x 64 view whatever ``stage2_rays`` is (it samples
-    pixels after rendering); the joint phase and stage 2 with --decode gaussian render square patches
-    of about ``patch_rays`` pixels (side floor(sqrt(patch_rays)), at least 16), and none at 0, the default
-    since Session 41 (whole views, or --patch-px patches of a larger image, as stage 1 and stage 2)."""
+def test_every_phase_scores_whole_views_unless_the_image_is_larger_than_a_patch():
+    """Stage 2 renders the whole 64 x 64 view whatever ``stage2_rays`` is (it samples pixels after
+    rendering), and so do the joint phase and stage 2 with --decode gaussian; --patch-px patches only
+    cut larger images."""
     from types import SimpleNamespace
 
     import torch
@@ -552,12 +486,11 @@ def test_stage2_scores_whole_views_and_patch_rays_sizes_the_joint_patches():
         st = SimpleNamespace(perm=[], gen=torch.Generator().manual_seed(0))
         return pick_view(st, [0, 1, 2], 64, 64, TrainConfig(**cfg), phase)[1]
 
-    assert TrainConfig().stage2_rays == 0 and TrainConfig().patch_rays == 0
+    assert TrainConfig().stage2_rays == 0
     assert window(Phase.STAGE2) is None and window(Phase.STAGE2, stage2_rays=2048) is None
     assert window(Phase.JOINT) is None and window(Phase.STAGE2, decode="gaussian") is None
-    assert window(Phase.JOINT, patch_rays=2048)[2:] == (45, 45)
-    assert window(Phase.STAGE2, decode="gaussian", patch_rays=400)[2:] == (20, 20)
-    assert window(Phase.JOINT, patch_rays=100)[2:] == (16, 16)
-    assert window(Phase.JOINT, patch_rays=0) is None
-    with pytest.raises(UserError, match="patch_rays"):
-        TrainConfig(patch_rays=-1).validate()
+    assert window(Phase.STAGE1, patch_px=32)[2:] == (32, 32)
+    with pytest.raises(UserError, match="patch_px"):
+        TrainConfig(patch_px=-1).validate()
+
+

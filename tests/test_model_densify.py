@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from brfgs.model.densify import DensifyConfig, DensifyState, quat_to_rotmat, refine, reset_opacity
+from brfgs.model.densify import ADCConfig, DensifyState, quat_to_rotmat, refine, reset_opacity
 from brfgs.model.gaussians import init_from_points, knn_scale, scene_extent
 from brfgs.model.optim import NamedAdam
 
@@ -49,47 +49,6 @@ def test_named_adam_matches_torch_adam():
     assert torch.allclose(x, y, atol=1e-6)
 
 
-def test_named_adam_weight_decay_matches_torch_adamw():
-    torch.manual_seed(1)
-    x = (torch.randn(7, 3) * 5).requires_grad_(True)
-    z = x.detach().clone().requires_grad_(True)  # no decay on this one
-    y = x.detach().clone().requires_grad_(True)
-    ours = NamedAdam({"x": 0.2, "z": 0.2}, weight_decay={"x": 0.5})
-    ref = torch.optim.AdamW([y], lr=0.2, eps=1e-15, weight_decay=0.5)
-    for _ in range(20):
-        for p in (x, y, z):
-            p.grad = None
-        for p in (x, y, z):
-            (torch.sin(p) * 1e-3).sum().backward()  # a weak gradient: the decay dominates
-        ours.step({"x": x, "z": z})
-        ref.step()
-    assert torch.allclose(x, y, atol=1e-5)
-    assert x.detach().abs().mean() < 0.5 * z.detach().abs().mean()  # decayed towards 0; z only drifts
-
-
-def test_named_adam_shrink_is_a_soft_threshold_after_the_adam_step():
-    x = (torch.randn(50, 4, generator=torch.Generator().manual_seed(99)) * 0.01).requires_grad_(True)
-    y = x.detach().clone().requires_grad_(True)  # the same start, plain Adam
-    start = x.detach().clone()
-    ours = NamedAdam({"x": 0.05}, shrink={"x": 0.3})
-    plain = NamedAdam({"y": 0.05})
-    for k in range(30):
-        g = torch.randn(50, 4, generator=torch.Generator().manual_seed(k))  # pure noise: no direction
-        g[:10] = 1.0  # ten rows with a steady gradient, as a glint's latent
-        x.grad, y.grad = g.clone(), g.clone()
-        plain.step({"y": y})
-        ours.step({"x": x})
-        if k == 0:  # from the same state: the Adam step, then sign(p) max(|p| - lr s, 0) (float64 reference)
-            stepped = y.detach().double()
-            expect = stepped.sign() * (stepped.abs() - 0.05 * 0.3).clamp_min(0)
-            assert torch.allclose(x.detach().double(), expect, atol=1e-7)
-    steady, noise = x.detach()[:10], x.detach()[10:]
-    # the steady rows keep moving at 0.7 of Adam's rate (30 steps x 0.05 x (1 - 0.3) = 1.05)
-    assert torch.allclose(steady - start[:10], torch.full_like(steady, -1.05), atol=1e-3)
-    assert torch.allclose(y.detach()[:10] - start[:10], torch.full_like(steady, -1.5), atol=1e-3)
-    assert noise.abs().mean() < 0.5 * y.detach()[10:].abs().mean()  # the noise rows are held near 0
-
-
 def test_refine_clones_splits_prunes_and_keeps_optimiser_rows_aligned():
     m = _model()
     n = m.n
@@ -107,8 +66,8 @@ def test_refine_clones_splits_prunes_and_keeps_optimiser_rows_aligned():
     mark = torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3)
     m.params["colors"] = mark.clone().requires_grad_(True)  # row identity
     opt.m["colors"] = mark.clone()
-    cfg = DensifyConfig(grow_grad2d=0.5, grow_scale3d=0.01, prune_opacity=0.005)
-    info = refine(m, opt, st, cfg, extent=10.0, gen=torch.Generator().manual_seed(0))
+    cfg = ADCConfig(grow_grad2d=0.5, grow_scale3d=0.01, prune_opacity=0.005)
+    info = refine(m, opt, st, cfg, extent=10.0, gen=torch.Generator().manual_seed(0), max_gaussians=60_000)
     assert info == {"cloned": 5, "split": 5, "pruned": 10, "n": n + 5 + 5 - 10}
     rows = m["colors"][:, 0].long().tolist()
     # originals 0..39 minus split parents 5..9, then clones 0..4, then 2 children each of 5..9

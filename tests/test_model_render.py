@@ -77,28 +77,6 @@ def test_learned_shading_normals_replace_the_smallest_axis():
     assert (a - c).abs().max() > 1e-3
 
 
-def test_stage1_colors_sh_rest_terms():
-    """Stage-1 colours: the view-independent colour plus Σ_j Y_j(ω_o)·rest_j (float64 reference)."""
-    from brfgs.brdf.sh import sh_basis
-    from brfgs.model.camera import Camera
-    from brfgs.model.features import stage1_colors
-
-    rng = np.random.default_rng(3)
-    m = init_from_points(rng.uniform(-5, 5, (12, 3)), rng.uniform(0, 1, (12, 3)), latent_dim=2)
-    cam = Camera("c", torch.eye(4), torch.eye(3), 8, 8, torch.tensor([3.0, -4.0, 50.0]))
-    assert torch.equal(stage1_colors(m, cam), m["colors"])  # no rest terms: view-independent
-    rest = torch.randn(12, 3, 3)
-    m.params["colors_rest"] = rest
-    d = cam.centre.double()[None] - m.means.detach().double()
-    d = d / d.norm(dim=-1, keepdim=True)
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    c1 = 0.4886025119029199
-    ref = m["colors"].detach().double() + (-c1 * y)[:, None] * rest[:, 0].double() \
-        + (c1 * z)[:, None] * rest[:, 1].double() + (-c1 * x)[:, None] * rest[:, 2].double()
-    assert torch.allclose(stage1_colors(m, cam).double(), ref, atol=1e-5)
-    assert torch.allclose(sh_basis(1, d)[:, 1], -c1 * y)
-
-
 def test_centred_form_with_frame_suns_is_eq12_under_each_frames_sun():
     """Frames with their own suns share one centring (the reference sun): the trained centred form
     under frame sun ω_f equals eq. 12 (after uncentre with the reference sun) evaluated under ω_f."""

@@ -13,11 +13,11 @@ import torch
 from brfgs.errors import UserError
 from brfgs.model.camera import Camera
 from brfgs.model.densify import DensifyState
-from brfgs.model.densify_config import DensifyConfig
+from brfgs.model.densify_config import ADCConfig
 from brfgs.model.rendering import rasterize_splats
 from brfgs.render._common import ALPHA_MAX, ALPHA_MIN, EPS2D
 from brfgs.render.supersample import box_downsample, box_mean, fine_intrinsics
-from brfgs.train.strategy import DensifyStrategy
+from brfgs.train.strategy import ADCStrategy
 
 W, H = 14, 11
 FX, FY, CX, CY = 9.0, 8.5, 6.8, 5.3
@@ -126,7 +126,7 @@ def test_densification_statistic_is_in_coarse_pixels():
     feats = torch.ones(1, 1, dtype=dt)
     ys, xs = torch.meshgrid(torch.arange(H, dtype=dt), torch.arange(W, dtype=dt), indexing="ij")
     target = (xs / W)[..., None]
-    strat = DensifyStrategy(DensifyConfig(), 0.0, W, H, 1.0)
+    strat = ADCStrategy(60_000, 0.0, W, H, 1.0, cfg=ADCConfig())
     stats = {}
     for s in (1, 2):
         out = rasterize_splats(means.clone().requires_grad_(True), quats, scales, opac, feats,
@@ -148,7 +148,7 @@ def test_factor_one_is_the_plain_render():
 
 
 def test_trained_model_renders_with_its_supersample(tmp_path):
-    from brfgs.model import TrainedModel, render
+    from brfgs.model import RenderSettings, TrainedModel, render
     from brfgs.train.presets import preset
     from brfgs.train.trainer import train
     from test_train_scene import make_plane_scene
@@ -160,7 +160,7 @@ def test_trained_model_renders_with_its_supersample(tmp_path):
     assert lm.render_settings.supersample == 2
     cam = lm.cameras[0]
     r2 = render(lm, cam)
-    lm.config["supersample"] = 1
+    lm.render_settings = RenderSettings(decode_order=lm.render_settings.decode_order, supersample=1)
     r1 = render(lm, cam)
     assert r2.cube.shape == r1.cube.shape == (32, 48, 12)
     assert np.abs(r2.cube - r1.cube).max() > 1e-4

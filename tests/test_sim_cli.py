@@ -1,4 +1,4 @@
-"""`brfgs simulate`: files written (conventions.md layout + truth/), noise model, determinism, errors."""
+"""`brfgs simulate`: files written (docs/data-format.md layout + truth/), noise model, determinism, errors."""
 
 from __future__ import annotations
 
@@ -249,3 +249,15 @@ def test_another_view_layout(tmp_path):
     rings = sc.rings()
     assert sorted(set(rings.values()), key=float) == ["0", "10", "65"]
     assert {rings[sc.frames[i].name] for i in sc.test_indices} >= {"10", "65"}   # held out from every ring
+
+
+def test_a_texture_less_simulated_scene_trains(tmp_path, capsys):
+    """`brfgs simulate --scene flat` (no texture by design) then `brfgs train`: the known poses start
+    from the ground plane the cameras look at instead of failing on the missing features."""
+    scene, run = tmp_path / "flat", tmp_path / "run"
+    assert main(["simulate", str(scene), "--scene", "flat", "--size", "32", "--views", "13", "--spp", "4", "--bands",
+                 "16", "--dark-frames", "2", "--quiet"]) == 0
+    assert main(["train", str(scene), str(run), "--preset", "tiny", "--threads", "1", "--quiet"]) == 0
+    report = json.loads((run / "init" / "init_report.json").read_text())
+    assert report["poses"] == "known" and "too little texture" in report["fallback"]
+    assert json.loads((run / "metrics.json").read_text())["against"]["truth"]["mean"]["psnr"] > 10

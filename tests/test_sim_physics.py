@@ -73,7 +73,7 @@ def test_testsite_ground_depth_agrees_with_camera_geometry():
 def test_rendered_image_is_aligned_with_camera_convention():
     """Mitsuba's image and the ray-cast material map (brfgs pixel_rays) agree pixel by pixel
     in an oblique view: the dark bitumen roof and the bright concrete yard fall where the
-    cameras of conventions.md put them (a flip or offset would mix them)."""
+    cameras of docs/data-format.md put them (a flip or offset would mix them)."""
     cfg = SimConfig.tiny("testsite", bands=1, spp=16, wavelength_min_nm=650, wavelength_max_nm=651)
     bld = _object("testsite", "building")[0]
     out = render_views(cfg, [(38.0, 240.0)], size=48, target_m=np.array(bld["centre_m"]))
@@ -190,7 +190,7 @@ def test_sigma_b_shape_of_a_snapshot_imager():
 
 
 def test_building_shadow_falls_away_from_the_sun():
-    """The directional sun comes from (θ_s, φ_s) of conventions.md: the yard just beyond the
+    """The directional sun comes from (θ_s, φ_s) of docs/data-format.md: the yard just beyond the
     building on the anti-sun side is in shadow, the yard on the sun side is lit."""
     from brfgs.data.cameras import project_points
 

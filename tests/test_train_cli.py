@@ -62,11 +62,11 @@ def test_bad_options_are_user_errors(scene, tmp_path, capsys):
     assert main(["train", str(scene), str(tmp_path / "x"), "--variant", "nope", "--quiet"]) == 2
     assert "variant" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "missing"), "--quiet"]) == 2
-    for opts, field in ((["--stage1-sh-degree", "4"], "stage1_sh_degree"), (["--lambda-normal", "-1"], "lambda_normal"),
+    for opts, field in ((["--supersample", "5"], "supersample"), (["--lambda-normal", "-1"], "lambda_normal"),
                         (["--lambda-flat", "-0.1"], "lambda_flat"), (["--lambda-depth-smooth", "-1"], "lambda_depth_smooth"),
-                        (["--lambda-depth-conc", "-1"], "lambda_depth_conc"), (["--lr-spec", "0"], "lr_spec"),
-                        (["--wd-spec", "-0.1"], "wd_spec"), (["--spec-shrink", "-1"], "spec_shrink"),
-                        (["--normal-edge-rel", "-0.1"], "normal_edge_rel")):
+                        (["--strategy", "other"], "strategy"), (["--lr-spec", "0"], "lr_spec"),
+                        (["--mcmc-growth", "-0.1"], "mcmc.growth"), (["--max-gaussians", "0"], "max_gaussians"),
+                        (["--init-fill", "dream"], "init_fill")):
         capsys.readouterr()
         assert main(["train", str(scene), str(tmp_path / "y"), *opts, "--quiet"]) == 2
         assert field in capsys.readouterr().err
@@ -97,7 +97,7 @@ def test_ablate_training_cli(scene, tmp_path):
 
 def test_ablate_tables_take_a_run_another_call_finished_meanwhile(scene, tmp_path, monkeypatch):
     """Two `brfgs ablate --only` calls side by side: the call that ends last writes the tables with the
-    other call's run, also when that run finished while this call trained (Session 43's tables lacked one)."""
+    other call's run, also when that run finished while this call trained (the tables once lacked one)."""
     import brfgs.workflows.ablate as ablate_mod
 
     out = tmp_path / "abl"
@@ -118,26 +118,42 @@ def test_ablate_tables_take_a_run_another_call_finished_meanwhile(scene, tmp_pat
 
 
 def test_every_training_option_is_on_the_command_line():
-    """The options of brfgs train are generated from TrainConfig: every field (nested densification
-    fields too) is an option, none is listed by hand."""
+    """The options of brfgs train are generated from TrainConfig: every field (the strategies' nested
+    fields too) is an option, none is listed by hand; --help lists at most 40 (the method's), and
+    --help-all also the experimental and expert ones."""
     import dataclasses
 
     import typer.main
 
     from brfgs.cli import app
     from brfgs.cli._config import config_options
+    from brfgs.model import ADCConfig, MCMCConfig
     from brfgs.train.config import TrainConfig
 
     cmd = typer.main.get_command(app).commands["train"]
     flags = {f for p in cmd.params for f in p.opts + p.secondary_opts}
     expected = config_options(TrainConfig)
-    from brfgs.model import DensifyConfig
-
-    n_fields = sum(len(dataclasses.fields(DensifyConfig)) if f.name == "densify" else 1 for f in dataclasses.fields(TrainConfig))
+    nested = {"densify": ADCConfig, "mcmc": MCMCConfig}
+    n_fields = sum(len(dataclasses.fields(nested[f.name])) if f.name in nested else 1 for f in dataclasses.fields(TrainConfig))
     assert len(expected) == n_fields
     for opt in expected:
         assert opt.flag.split("/")[0] in flags, opt.flag
-    assert "--densify-refine-every" in flags and "--lr-means-final" in flags and "--ae-steps" in flags
+    assert "--densify-refine-every" in flags and "--mcmc-growth" in flags and "--ae-steps" in flags
+    shown = [p for p in cmd.params if getattr(p, "param_type_name", "") == "option" and not p.hidden]
+    assert len(shown) <= 40, len(shown)
+    assert {"--preset", "--stage1-steps", "--strategy", "--help-all"} <= {o for p in shown for o in p.opts}
+
+
+def test_help_lists_the_method_and_help_all_the_experimental_options(capsys):
+    import re
+
+    assert main(["train", "--help"]) == 0
+    short = capsys.readouterr().out
+    assert main(["train", "--help-all"]) == 0
+    full = capsys.readouterr().out
+    assert "--stage1-steps" in short and "--lr-means" not in short and "--adc" not in short
+    assert "--lr-means" in full and "--densify-absgrad" in full and "Experimental and expert options" in full
+    assert not re.search(r"Session \d|issue \d|#\d\d", short + full)
 
 
 def test_config_file_reruns_a_run_exactly(scene, tmp_path, capsys):

@@ -25,8 +25,8 @@ from test_train_scene import make_plane_scene
 # densification inside stage 1 (clone/split/prune decisions must agree), stage-2 ray sampling
 # (per-view generators), the numba rasterizer; one thread per process so the digits can match
 OPTS = dict(threads=1, backend="cpu", stage1_steps=24, stage2_steps=8, stage2_rays=256, views_per_step=2,
-            checkpoint_every=10, densify=dict(refine_start=4, refine_stop=20, refine_every=6, reset_every=1000,
-                                              max_gaussians=5000))
+            checkpoint_every=10, densify=dict(refine_start=4, refine_stop=20, refine_every=6, reset_every=1000),
+            max_gaussians=5000)
 ARGS = ["--preset", "tiny", "--threads", "1", "--backend", "cpu", "--stage1-steps", "24", "--stage2-steps", "8",
         "--stage2-rays", "256", "--views-per-step", "2", "--checkpoint-every", "10", "--densify-refine-start", "4",
         "--densify-refine-stop", "20", "--densify-refine-every", "6", "--quiet", "--no-evaluate"]

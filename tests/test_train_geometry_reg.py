@@ -12,7 +12,7 @@ from brfgs.model.camera import camera_from_c2w
 from brfgs.model.features import camera_depth_normals
 from brfgs.model.rendering import rasterize_features
 from brfgs.render.geometry import normals_from_depth
-from brfgs.train.losses import depth_normal_loss, flatten_loss, image_edge_weight
+from brfgs.train.losses import depth_normal_loss, flatten_loss
 
 
 def _K(w=24, h=20, f=30.0):
@@ -54,6 +54,23 @@ def _tilted_plane():
     return w, h, K, n0, _plane_depth(n0.numpy(), -8.0, K, w, h), torch.full((h, w), 0.9, dtype=torch.float64)
 
 
+def _normal_gradcheck(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, rows, cols) -> bool:
+    """gradcheck of depth_normal_loss in the normal channels of a window of ``geo`` (the depth is
+    detached by the loss: no gradient reaches it, checked apart)."""
+    g = geo[rows, cols].clone()
+    Kc = K.clone()
+    Kc[0, 2] -= cols.start
+    Kc[1, 2] -= rows.start
+    a = alpha[rows, cols]
+    d = g[..., :1]
+    n = g[..., 1:].clone().requires_grad_(True)
+    whole = g.clone().requires_grad_(True)
+    depth_normal_loss(whole, a, Kc).backward()
+    assert float(whole.grad[..., 0].abs().max()) == 0.0  # the prior never moves the depth
+    return torch.autograd.gradcheck(lambda x: depth_normal_loss(torch.cat([d, x], -1), a, Kc), (n,), eps=1e-6,
+                                    atol=1e-6)
+
+
 def test_depth_normal_loss_zero_when_consistent_and_gradients():
     w, h, K, n0, depth, alpha = _tilted_plane()
     geo = torch.cat([(alpha * depth)[..., None], alpha[..., None] * n0.expand(h, w, 3)], -1)
@@ -65,20 +82,15 @@ def test_depth_normal_loss_zero_when_consistent_and_gradients():
     assert math.isclose(float(depth_normal_loss(geo_w, alpha, K)), expected, rel_tol=1e-9)
     # transparent pixels do not count
     assert float(depth_normal_loss(geo_w, torch.full_like(alpha, 0.2), K)) == 0.0
-    # gradients (depth and normal channels) against finite differences
-    g = (geo_w + 0.01 * torch.randn(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(0)))
-    g = g[4:10, 5:11].clone().requires_grad_(True)
-    Kc = K.clone()
-    Kc[0, 2] -= 5
-    Kc[1, 2] -= 4
-    a = alpha[4:10, 5:11]
-    assert torch.autograd.gradcheck(lambda x: depth_normal_loss(x, a, Kc), (g,), eps=1e-6, atol=1e-6)
+    # gradients of the normal channels against finite differences
+    g = geo_w + 0.01 * torch.randn(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    assert _normal_gradcheck(g, alpha, K, slice(4, 10), slice(5, 11))
 
 
-def test_per_gaussian_depth_normal_loss_counts_each_disc_by_its_weight():
+def test_depth_normal_loss_counts_each_disc_by_its_weight():
     """Two discs on every ray of a plane: 80 % of the weight facing the plane's normal, 10 % a fin
-    turned 80° away. 2DGS's per-Gaussian form is sum_k w_k (1 - n_k . n_d) (float64 reference);
-    the blended form renormalises the mean normal, in which the fin is nearly hidden."""
+    turned 80° away. 2DGS's per-Gaussian form is sum_k w_k (1 - n_k . n_d) (float64 reference); a
+    renormalised mean normal would nearly hide the fin."""
     w, h, K, n0, depth, _ = _tilted_plane()
     side = torch.linalg.cross(n0, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
     side = side / side.norm()
@@ -88,102 +100,14 @@ def test_per_gaussian_depth_normal_loss_counts_each_disc_by_its_weight():
     blended = wk[0] * n0 + wk[1] * fin  # [3] premultiplied
     geo = torch.cat([(alpha * depth)[..., None], blended.expand(h, w, 3)], -1)
     expected = sum(wi * (1 - float(ni @ n0)) for wi, ni in zip(wk, (n0, fin)))
-    per = float(depth_normal_loss(geo, alpha, K, per_gaussian=True))
+    per = float(depth_normal_loss(geo, alpha, K))
     assert math.isclose(per, expected, rel_tol=1e-9)
-    old = float(depth_normal_loss(geo, alpha, K))
-    assert math.isclose(old, 0.9 * (1 - float(blended @ n0) / float(blended.norm())), rel_tol=1e-9)
-    assert per > 5 * old  # the fin's misalignment is not averaged away
-    # consistent discs cost nothing in either form
+    renormalised = 0.9 * (1 - float(blended @ n0) / float(blended.norm()))
+    assert per > 5 * renormalised  # the fin's misalignment is not averaged away
     flat = torch.cat([(alpha * depth)[..., None], alpha[..., None] * n0.expand(h, w, 3)], -1)
-    assert float(depth_normal_loss(flat, alpha, K, per_gaussian=True)) < 1e-12
-    g = (geo + 0.01 * torch.randn(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1)))
-    g = g[3:9, 4:10].clone().requires_grad_(True)
-    Kc = K.clone()
-    Kc[0, 2] -= 4
-    Kc[1, 2] -= 3
-    assert torch.autograd.gradcheck(lambda x: depth_normal_loss(x, alpha[3:9, 4:10], Kc, per_gaussian=True), (g,),
-                                    eps=1e-6, atol=1e-6)
-
-
-def _edge_weight_reference(img: np.ndarray, valid: np.ndarray, edge_rel: float) -> np.ndarray:
-    """float64 loops: 3x3 box mean (edges replicated, invalid pixels 0), largest contrast to a
-    valid 4-neighbour, relative to edge_rel x the channel's mean |I| over the valid pixels."""
-    h, w, c = img.shape
-    t = np.where(valid[..., None], img, 0.0)
-    scale = edge_rel * np.abs(t[valid]).mean(0)
-    box = np.zeros_like(t)
-    for y in range(h):
-        for x in range(w):
-            ys = [min(max(y + d, 0), h - 1) for d in (-1, 0, 1)]
-            xs = [min(max(x + d, 0), w - 1) for d in (-1, 0, 1)]
-            box[y, x] = t[np.ix_(ys, xs)].reshape(9, c).mean(0)
-    out = np.ones((h, w))
-    for y in range(h):
-        for x in range(w):
-            g = np.zeros(c)
-            for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                yy, xx = y + dy, x + dx
-                if 0 <= yy < h and 0 <= xx < w and valid[y, x] and valid[yy, xx]:
-                    g = np.maximum(g, np.abs(box[yy, xx] - box[y, x]))
-            out[y, x] = math.exp(-(g / scale).max())
-    return out
-
-
-def test_image_edge_weight_against_float64_loops_and_limits():
-    rng = np.random.default_rng(3)
-    img = rng.uniform(0.05, 0.6, (9, 11, 3))
-    valid = rng.uniform(size=(9, 11)) > 0.15
-    img[~valid] = np.nan
-    got = image_edge_weight(torch.as_tensor(img), torch.as_tensor(valid), 0.3).numpy()
-    np.testing.assert_allclose(got, _edge_weight_reference(np.nan_to_num(img), valid, 0.3), rtol=1e-12, atol=1e-14)
-    # a uniform surface weighs 1; a material edge (a bright crown against dark ground) ~0 on both
-    # sides (box means 0.2 | 0.33 | 0.47 | 0.6: contrast 0.13 against 0.1 x the mean 0.4), and 1
-    # two pixels away, where the 3x3 mean no longer straddles it
-    flat = torch.full((8, 12, 2), 0.2, dtype=torch.float64)
-    ok = torch.ones(8, 12, dtype=torch.bool)
-    assert torch.equal(image_edge_weight(flat, ok, 0.1), torch.ones(8, 12, dtype=torch.float64))
-    step = flat.clone()
-    step[:, 6:] = 0.6
-    w = image_edge_weight(step, ok, 0.1)
-    assert torch.allclose(w[:, 5:7], torch.tensor(math.exp(-0.4 / 3 / 0.04), dtype=torch.float64))
-    assert float(w[:, :4].min()) == 1.0 and float(w[:, 8:].min()) == 1.0
-
-
-def test_weighted_depth_normal_loss_is_a_weighted_mean():
-    w, h, K, n0, depth, alpha = _tilted_plane()
-    gen = torch.Generator().manual_seed(1)
-    nr = torch.nn.functional.normalize(n0 + 0.3 * torch.randn(h, w, 3, dtype=torch.float64, generator=gen), dim=-1)
-    geo = torch.cat([(alpha * depth)[..., None], alpha[..., None] * nr], -1)
-    ones = torch.ones(h, w, dtype=torch.float64)
-    plain = float(depth_normal_loss(geo, alpha, K))
-    assert math.isclose(float(depth_normal_loss(geo, alpha, K, weight=3.0 * ones)), plain, rel_tol=1e-12)
-    wt = torch.rand(h, w, dtype=torch.float64, generator=gen)
-    nd, valid = normals_from_depth(depth, K)  # the plane's own normal
-    err = 0.9 * (1 - (nr * nd).sum(-1))
-    expected = float((err * wt)[valid].sum() / wt[valid].sum())
-    assert math.isclose(float(depth_normal_loss(geo, alpha, K, weight=wt)), expected, rel_tol=1e-10)
-    # a pixel of weight 0 does not count, however wrong its normal
-    bad = geo.clone()
-    bad[5, 5, 1:] = alpha[5, 5] * torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
-    wz = wt.clone()
-    wz[5, 5] = 0.0
-    assert math.isclose(float(depth_normal_loss(bad, alpha, K, weight=wz)), float(depth_normal_loss(geo, alpha, K, weight=wz)),
-                        rel_tol=1e-12)
-    # normals only: the same value, no gradient reaches the depth channel, the normals' is unchanged
-    gd = geo.clone().requires_grad_(True)
-    gn = geo.clone().requires_grad_(True)
-    depth_normal_loss(gd, alpha, K, weight=wt).backward()
-    only = depth_normal_loss(gn, alpha, K, weight=wt, depth_grad=False)
-    only.backward()
-    assert math.isclose(float(only.detach()), expected, rel_tol=1e-10)
-    assert float(gd.grad[..., 0].abs().max()) > 0 and float(gn.grad[..., 0].abs().max()) == 0.0
-    assert torch.equal(gn.grad[..., 1:], gd.grad[..., 1:])
-    g = geo[3:9, 4:10].clone().requires_grad_(True)
-    Kc = K.clone()
-    Kc[0, 2] -= 4
-    Kc[1, 2] -= 3
-    assert torch.autograd.gradcheck(lambda x: depth_normal_loss(x, alpha[3:9, 4:10], Kc, weight=wt[3:9, 4:10]), (g,),
-                                    eps=1e-6, atol=1e-6)
+    assert float(depth_normal_loss(flat, alpha, K)) < 1e-12
+    g = geo + 0.01 * torch.randn(h, w, 4, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    assert _normal_gradcheck(g, alpha, K, slice(3, 9), slice(4, 10))
 
 
 def test_flatten_loss_limits():

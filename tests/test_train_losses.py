@@ -57,17 +57,6 @@ def test_l1_cos_psnr_hand_values():
     assert ang == pytest.approx(sam(a.numpy(), b.numpy()), abs=1e-3)
 
 
-def test_coverage_loss_is_the_uncovered_fraction():
-    from brfgs.train.losses import coverage_loss
-    alpha = torch.tensor([[1.0, 0.5], [0.0, 0.25]], requires_grad=True)
-    valid = torch.tensor([[True, True], [False, True]])
-    loss = coverage_loss(alpha, valid)
-    assert float(loss) == pytest.approx((0.0 + 0.5 + 0.75) / 3)
-    loss.backward()
-    np.testing.assert_allclose(alpha.grad.numpy(), [[-1 / 3, -1 / 3], [0.0, -1 / 3]])
-    assert float(coverage_loss(alpha, torch.zeros(2, 2, dtype=bool))) == 0.0
-
-
 def test_spectral_tv_loss_against_numpy_brightness_free_and_edges():
     from brfgs.train.losses import spectral_tv_loss
 

@@ -9,6 +9,7 @@ import json
 import pytest
 import torch
 
+from brfgs.train.config_format import REMOVED
 from brfgs.cli import main
 from brfgs.errors import UserError
 from brfgs.model.io import load
@@ -68,21 +69,6 @@ def test_damaged_newest_checkpoint_resumes_from_the_previous_one(scene, tmp_path
     assert len(set(_log_keys(run))) == len(_log_keys(run))
 
 
-def test_a_run_interrupted_in_the_refinement_resumes_bit_for_bit(scene, tmp_path):
-    """--refine-steps: Ctrl-C inside the third phase keeps a checkpoint there, and rerunning gives the
-    uninterrupted run's tensors and log rows."""
-    cfg = _cfg(refine_steps=6)
-    ref = train(scene, tmp_path / "ref", cfg, progress=False, log=None)
-    run = tmp_path / "run"
-    with pytest.raises(KeyboardInterrupt):
-        train(scene, run, cfg, progress=False, callback=_interrupt_at(("refine", 3)), log=None)
-    assert load(run / "checkpoints" / "last.safetensors")[1]["phase"] == "refine"
-    out = train(scene, run, cfg, progress=False, log=None)
-    ta, tb = load(ref)[0], load(out)[0]
-    assert ta.keys() == tb.keys() and all(torch.equal(ta[k], tb[k]) for k in ta)
-    assert _log_keys(run) == _log_keys(tmp_path / "ref") and ("refine", 6) in _log_keys(run)
-
-
 def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
@@ -94,17 +80,18 @@ def test_no_readable_checkpoint_is_a_user_error(scene, tmp_path):
         train(scene, run, _cfg(), progress=False, log=None)
 
 
-@pytest.mark.parametrize("option", ["normal_prior_per_gaussian", "stage1_kernels", "dssim_per_band"])
+@pytest.mark.parametrize("option", ["stage1_kernels", "dssim_per_band"])
 def test_a_run_started_before_a_default_changed_resumes_with_its_own_method(scene, tmp_path, option):
-    """A config.json written before ``option`` existed trained its old value (False: the blended
-    depth-normal prior before Session 26, flat stage-1 colours before Session 33, the grayscale D-SSIM
-    before Session 36): resuming it with today's default is refused naming the option, and resuming
-    with the old value works."""
+    """A config.json of brfgs 0.1 written before ``option`` existed trained its old value (False: flat
+    stage-1 colours, the grayscale D-SSIM): resuming it with today's default is refused naming the
+    option, and resuming with the old value works."""
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
         train(scene, run, _cfg(**{option: False}), progress=False, callback=_interrupt_at(("stage1", 7)), log=None)
     cfg = json.loads((run / "config.json").read_text())
-    del cfg[option]                                          # as a run of before the option wrote it
+    del cfg[option], cfg["format_version"], cfg["mcmc"], cfg["strategy"]  # as brfgs 0.1 wrote it, before the option
+    cfg["densify"].update(mode="adc", max_gaussians=cfg.pop("max_gaussians"))
+    cfg.update({k: (0.2 if v is None else v) for k, v in REMOVED.items()})  # format 1 listed the removed options
     (run / "config.json").write_text(json.dumps(cfg))
     with pytest.raises(UserError, match=option):
         train(scene, run, _cfg(), progress=False, log=None)

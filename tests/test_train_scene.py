@@ -2,7 +2,7 @@
 
 Textured ground plane z = 0 of two spectra (soil / vegetation) mixed by a smooth pattern,
 with a mild view-dependent factor, seen from paper_view_angles(13) at 60 m; 16 bands.
-Writes the conventions.md layout (ENVI cubes) plus truth/images (noise-free).
+Writes the docs/data-format.md layout (ENVI cubes) plus truth/images (noise-free).
 """
 
 from __future__ import annotations

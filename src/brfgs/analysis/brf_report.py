@@ -30,6 +30,7 @@ import numpy as np
 
 from brfgs.analysis import brf as B
 from brfgs.analysis import plots
+from brfgs.analysis.options import BRFOptions, TruthOptions
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder, safe_name
 from brfgs.analysis.roi import ROI
 from brfgs.analysis.roi_spec import ROISpec, parse_roi_spec, resolve_roi
@@ -37,7 +38,7 @@ from brfgs.analysis.threads import torch_threads
 from brfgs.analysis.truth import brf_error, check_truth_spp, has_simulator_truth, truth_brf
 from brfgs.analysis.views import hemisphere_grid, principal_plane_directions
 from brfgs.data import read_scene
-from brfgs.data.splits import SPLIT_RULE_BEFORE
+from brfgs.data.splits import split_rule_of
 from brfgs.data.angles import relative_azimuth_deg
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
@@ -45,43 +46,6 @@ from brfgs.model import TrainedModel
 from brfgs.data import atomic
 
 __all__ = ["TruthOptions", "BRFOptions", "brf_report", "open_model_scene"]
-
-
-@dataclass
-class TruthOptions:
-    """Simulator truth renders of ``brfgs brf`` on simulated scenes (truth/scene.json)."""
-
-    render: bool = True          # render the truth again along the plane and on a polar grid
-    step_deg: float = 10.0       # principal-plane step
-    size: int = 128              # px of the principal-plane renders (acquisition field of view)
-    polar_azimuths: int = 12
-    polar_zeniths: int = 6
-    polar_size: int = 64         # px of the polar renders
-    spp: int = 16                # samples per pixel (a power of 4 for 'ldsampler' scenes)
-
-
-@dataclass
-class BRFOptions:
-    """Options of ``brfgs brf`` (see :func:`brf_report`)."""
-
-    roi: str                                   # ROI specification (brfgs.analysis.roi_spec)
-    roi_name: str | None = None
-    bands_nm: tuple[float, ...] = (480.0, 680.0, 760.0, 860.0)
-    scene: Path | None = None                  # None: the training scene, when it still exists
-    step_deg: float = 2.5                      # principal-plane step
-    max_zenith_deg: float = 75.0
-    polar_azimuths: int = 60
-    polar_zeniths: int = 24
-    polar: bool = True
-    min_alpha: float = 0.5
-    distance_m: float | None = None            # ROI camera distance (None: automatic)
-    size: int | None = None                    # px of the square ROI camera (None: training footprint)
-    truth: TruthOptions = field(default_factory=TruthOptions)
-    max_plane_offset_deg: float = 20.0         # observations plotted on the principal plane
-    threads: int = 1                           # PyTorch threads in the sampling loops (0: as is)
-    backend: str = "auto"
-    overwrite: bool = False
-    progress: bool = True
 
 
 def open_model_scene(tm: TrainedModel, scene_path: Path | None, required: bool) -> Scene | None:
@@ -97,7 +61,7 @@ def open_model_scene(tm: TrainedModel, scene_path: Path | None, required: bool) 
     kw = {"roi": tm.scene["roi"]} if tm.scene.get("roi") is not None else {}
     split_seed = int(tm.config.get("split_seed", 0))
     return read_scene(root, downscale=int(tm.scene.get("downscale", 1) or 1), split_seed=split_seed,
-                      split_rule=str(tm.config.get("split_rule", SPLIT_RULE_BEFORE)),
+                      split_rule=split_rule_of(tm.config),
                       allow_outside_links=bool(tm.config.get("allow_outside_links", False)), **kw)
 
 
@@ -408,7 +372,8 @@ def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
     """``brfgs brf``: the BRF of the ROI ``opts.roi`` of the model of ``run``, written into ``out``
     (default RUN/analysis/brf_<roi name>; the files are listed in the module docstring).
     ``warn`` receives warnings (an ROI not seen from some directions; default: standard error)."""
-    spec, r = _start(run, opts, out, warn)
+    opts.validate()
+    spec, r = _start(run, opts, out if out is not None else opts.out, warn)
     t0 = time.perf_counter()
     with torch_threads(opts.threads or None):
         r.region = resolve_roi(spec, r.tm, r.scene, opts.backend)

@@ -17,6 +17,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from brfgs.analysis import plots, views
+from brfgs.analysis.options import RenderOptions
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
 from brfgs.data.cameras import Intrinsics
 from brfgs.data.cube_io import write_envi
@@ -27,27 +28,6 @@ from brfgs.data import atomic
 __all__ = ["RenderOptions", "render_report", "PATHS"]
 
 PATHS = ("orbit", "sweep")
-
-
-@dataclass
-class RenderOptions:
-    """Options of ``brfgs render``; None means "the model's own" (training sun, size, field of view,
-    median camera distance, median Gaussian position)."""
-
-    view_zenith_deg: float
-    view_azimuth_deg: float   # clockwise from north, from the target toward the sensor
-    sun_zenith_deg: float | None = None
-    sun_azimuth_deg: float | None = None
-    distance_m: float | None = None
-    target_m: tuple[float, float, float] | None = None   # ENU m
-    size: tuple[int, int] | None = None                  # (W, H) px
-    fov_deg: float | None = None                          # horizontal
-    path: str | None = None                               # None | "orbit" | "sweep"
-    frames: int = 36                                      # views of a path
-    repeat: int = 1                                       # renders of a single view (timings)
-    backend: str = "auto"
-    overwrite: bool = False
-    progress: bool = True
 
 
 @dataclass
@@ -86,7 +66,7 @@ def _viewer(tm: TrainedModel, opts: RenderOptions) -> _Viewer:
     sa = tm.sun_azimuth_deg if opts.sun_azimuth_deg is None else views.check_azimuth_deg(opts.sun_azimuth_deg,
                                                                                          "--sun-azimuth")
     tr = tm.intrinsics
-    size = (tr.w, tr.h) if opts.size is None else (int(opts.size[0]), int(opts.size[1]))
+    size = (tr.w, tr.h) if opts.size is None else (int(opts.size[0]), int(opts.size[-1]))
     fov = opts.fov_deg if opts.fov_deg is not None else math.degrees(2 * math.atan(0.5 * tr.w / tr.fl_x))
     target = tm.scene_centre_m() if opts.target_m is None else np.asarray(opts.target_m, float)
     dist = tm.typical_distance_m() if opts.distance_m is None else opts.distance_m
@@ -157,6 +137,8 @@ def _path_views(out: Path, vw: _Viewer, opts: RenderOptions, vz: float, va: floa
 def render_report(run: str | Path, opts: RenderOptions, out: str | Path | None = None) -> Report:
     """``brfgs render``: render the model of ``run`` (run folder or model file) as ``opts`` asks and
     write the files into ``out`` (default RUN/analysis/render_z<Z>_a<A>[_<path>])."""
+    opts.validate()
+    out = out if out is not None else opts.out
     vz, va = _check(opts)
     tm = TrainedModel.load(run)
     vw = _viewer(tm, opts)

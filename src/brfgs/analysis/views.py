@@ -1,6 +1,6 @@
 """View geometry of the analysis: arbitrary cameras, hemisphere grids, principal plane, paths.
 
-Angles follow shared/conventions.md: zenith from +z, azimuth clockwise from north of the
+Angles follow docs/data-format.md: zenith from +z, azimuth clockwise from north of the
 direction from the target toward the sensor (view) or the sun; relative azimuth
 φ = φ_view − φ_sun, φ = 0 is backscatter; on the principal plane the signed view zenith
 is positive on the sun's side.

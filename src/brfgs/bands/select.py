@@ -30,11 +30,11 @@ import numpy as np
 from tqdm import tqdm
 
 from brfgs.bands import efc as E
+from brfgs.bands.options import DEFAULT_DETECT_MAX_PX, STRATEGIES  # noqa: F401  (re-exported)
 from brfgs.data import atomic
 from brfgs.data.figures import pyplot
 from brfgs.errors import UserError
 
-STRATEGIES = ("efc", "efc-top1", "efc-top3", "all", "rgb", "cir", "central", "max-snr", "max-features")
 # The eight strategies of Table 2, in the paper's order.
 TABLE2_STRATEGIES = ("all", "rgb", "cir", "central", "max-snr", "max-features", "efc-top1", "efc-top3")
 FIXED_WAVELENGTHS_NM = {"rgb": (650.0, 550.0, 450.0), "cir": (850.0, 650.0, 550.0), "central": (675.0,)}
@@ -44,7 +44,6 @@ STRATEGY_LABELS = {
     "efc-top1": "1 geometry-reliable band (EFC)", "efc-top3": "3 geometry-reliable bands (EFC)",
     "efc": "EFC top-k",
 }
-DEFAULT_DETECT_MAX_PX = 1024
 
 
 @dataclass
@@ -92,7 +91,7 @@ class BandSelection:
         return [float(self.wavelengths_nm[i]) for i in self.selected]
 
     def to_json(self) -> dict:
-        """``bands.json`` content (schema in conventions.md, "Machine-readable outputs")."""
+        """``bands.json`` content (schema in docs/data-format.md, "Machine-readable outputs")."""
         st = self.stats
 
         def val(arr, i, cast=float):

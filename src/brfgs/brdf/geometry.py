@@ -1,6 +1,6 @@
 """Per-Gaussian geometry for the reflectance head: normals and view and sun directions.
 
-Conventions (shared/conventions.md): ENU world frame; ω_o of Gaussian k is
+Conventions (docs/data-format.md): ENU world frame; ω_o of Gaussian k is
 ``normalize(camera_centre − μ_k)``; the normal n_k is the axis of the Gaussian's smallest
 scale, flipped to face ω_o (paper, after eq. 21). ``quat_to_rotmat`` lives in
 :mod:`brfgs.render.geometry` and is re-exported here.

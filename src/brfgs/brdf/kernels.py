@@ -9,7 +9,7 @@ dot products serves all three kernels and every value and gradient stays finite:
 * ``cos ξ = ω_i·ω_o`` — the phase angle (paper eq. 15 / Lucht et al. 2000 eq. 43),
   frame independent.
 
-Directions follow ``shared/conventions.md``: ω_i points toward the sun, ω_o toward
+Directions follow ``docs/data-format.md``: ω_i points toward the sun, ω_o toward
 the sensor, both away from the surface; with ``d = (sinθ sinφ, sinθ cosφ, cosθ)``,
 relative azimuth φ = φ_view − φ_sun and φ = 0 is backscatter (hotspot at θ_v = θ_s, φ = 0).
 
@@ -165,7 +165,7 @@ def _li_core(sec_i, sec_o, cos_xi_p, d2, x, hb: float):
     x: tan θ'_i tan θ'_o sin φ. All [...].
     """
     m = sec_i + sec_o  # [...]
-    cos_t = hb * _safe_sqrt(d2 + x * x) / m  # eq. 18 (corrected form, conventions.md)
+    cos_t = hb * _safe_sqrt(d2 + x * x) / m  # eq. 18 (corrected form, docs/data-format.md)
     overlap = _LiOverlap.apply(cos_t) * m * _INV_PI  # eq. 17 / Lucht eq. 40
     return overlap - m + 0.5 * (1.0 + cos_xi_p) * sec_i * sec_o  # eq. 16 / Lucht eq. 39
 
@@ -328,7 +328,7 @@ def directions_from_angles(
 ) -> tuple[Tensor, Tensor]:  # ω_i [..., 3], ω_o [..., 3] unit
     """(ω_i, ω_o) for sun zenith, view zenith and relative azimuth φ.
 
-    The sun is put at azimuth 0 and the view at azimuth φ (conventions.md: φ = φ_view − φ_sun,
+    The sun is put at azimuth 0 and the view at azimuth φ (docs/data-format.md: φ = φ_view − φ_sun,
     φ = 0 backscatter). Inputs are tensors or floats, broadcast together.
     """
     ts, tv, phi = torch.broadcast_tensors(

@@ -42,38 +42,48 @@ class ConfigOption:
     aliases: tuple[str, ...] = ()
     metavar: str | None = None
     required: bool = False
+    default: Any = None
 
     @property
     def name(self) -> str:
         return "_".join(self.path)
 
 
-def _kind(tp) -> Any:
-    """The click-facing type of a field: bool, int, float, str; tuples are given as 'A,B,...' text."""
+def _unoptional(tp):
+    """``X`` of ``Optional[X]`` (``tp`` itself otherwise)."""
     if typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp):
         (tp,) = [a for a in typing.get_args(tp) if a is not type(None)]
-    if tp in (bool, int, float, str):
+    return tp
+
+
+def _kind(tp) -> Any:
+    """The click-facing type of a field: bool, int, float, str, Path; tuples are given as 'A,B,...' text."""
+    tp = _unoptional(tp)
+    if tp in (bool, int, float, str, Path):
         return tp
     if typing.get_origin(tp) is tuple:
         return str
     raise TypeError(f"no command-line type for {tp!r}")
 
 
-def config_options(cls, prefix: tuple[str, ...] = ()) -> list[ConfigOption]:
-    """The options of every field of dataclass ``cls`` (nested dataclasses flattened)."""
+def config_options(cls, prefix: tuple[str, ...] = (), flag_prefix: tuple[str, ...] = ()) -> list[ConfigOption]:
+    """The options of every field of dataclass ``cls`` (nested dataclasses flattened: their fields'
+    flags carry the nested field's name, ``--densify-refine-every``, unless its metadata says
+    ``flatten``, as for options shared by several commands)."""
     hints = typing.get_type_hints(cls)
     out = []
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
         path = prefix + (f.name,)
         if dataclasses.is_dataclass(tp):
-            out += config_options(tp, path)
+            out += config_options(tp, path, flag_prefix + (() if f.metadata.get("flatten") else (f.name,)))
             continue
-        flag = f.metadata.get("flag") or "--" + "-".join(path).replace("_", "-")
+        flag = f.metadata.get("flag") or "--" + "-".join(flag_prefix + (f.name,)).replace("_", "-")
         required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        default = None if required else (f.default if f.default is not dataclasses.MISSING else f.default_factory())
         out.append(ConfigOption(path, _kind(tp), flag, f.metadata.get("help", ""), f.metadata.get("panel"),
                                 bool(f.metadata.get("expert", False)), tuple(f.metadata.get("aliases", ())),
-                                f.metadata.get("metavar"), required))
+                                f.metadata.get("metavar"), required, default))
     return out
 
 
@@ -109,7 +119,7 @@ def given_options(cls, values: dict[str, Any]) -> dict[tuple[str, ...], Any]:
         v = values.get(opt.name)
         if v is None:
             continue
-        tp = _field_type(cls, opt.path)
+        tp = _unoptional(_field_type(cls, opt.path))
         out[opt.path] = _parse_tuple(v, tp, opt) if typing.get_origin(tp) is tuple else v
     return out
 
@@ -155,10 +165,23 @@ def _show_all_help(ctx: typer.Context, _param, value: bool) -> None:
     raise typer.Exit()
 
 
+def _default_text(o: ConfigOption) -> str:
+    """' (default: X)' for the help of an option whose dataclass default is worth showing."""
+    d = o.default
+    if d is None or o.required or d == "" or (isinstance(d, bool) and "/" in o.flag):
+        return ""
+    if isinstance(d, bool):
+        return "" if not d else " (default: on)"
+    text = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in d) if isinstance(d, tuple) else (
+        f"{d:g}" if isinstance(d, float) else str(d))
+    return f" (default: {text})"
+
+
 def _option_parameter(o: ConfigOption) -> inspect.Parameter:
     """The keyword parameter (a typer.Option) of a generated option."""
     annotation = o.kind if o.required else Optional[o.kind]
-    option = typer.Option(... if o.required else None, o.flag, *o.aliases, help=o.help, show_default=False,
+    option = typer.Option(... if o.required else None, o.flag, *o.aliases, help=o.help + _default_text(o),
+                          show_default=False,
                           metavar=o.metavar, hidden=o.expert, rich_help_panel=EXPERT_PANEL if o.expert else o.panel)
     return inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, annotation=annotation, default=option)
 

@@ -6,48 +6,24 @@ from pathlib import Path
 
 import typer
 
+from brfgs.bands.options import SelectBandsOptions
 from brfgs.cli import _options as opt
+from brfgs.cli._config import apply_options, config_command
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
-StrategyOpt = typer.Option(
-    "efc", "--strategy", "-s",
-    help="efc (top-k by EFC, the method), efc-top1, efc-top3, all, rgb, cir, central, max-snr, max-features.")
-TopOpt = typer.Option(3, "--top", "-k", min=1, help="k of the 'efc' strategy (paper: 3).")
-DetectMaxOpt = typer.Option(1024, "--detect-max-px", min=16,
-                            help="Detect features on an integer-downscaled copy when the long side is larger.")
 
-
-def select_bands_cmd(
-    scene: Path = opt.SceneArg,
-    strategy: str = StrategyOpt,
-    top: int = TopOpt,
-    out: Path = typer.Option(None, "--out", "-o",
-                             help="Folder for bands.json and bands.png [default: ./bands_<scene>]."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing bands.json in --out."),
-    downscale: int = opt.DownscaleOpt,
-    value_range: str = opt.ValueRangeOpt,
-    allow_outside_links: bool = opt.AllowLinksOpt,
-    detect_max_px: int = DetectMaxOpt,
-    min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
-                                         help="EFC strategies: chosen bands at least this far apart in wavelength "
-                                              "(beyond the paper; 0 = paper eq. 8, adjacent bands allowed)."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-) -> None:
-    """Rank the bands by equivalent feature count (EFC) and keep the top k; write bands.json and a plot.
-
-    Per band and view: SIFT keypoints on the band as an 8-bit image (eq. 3), 5x5 median
-    reflectance around each (eq. 4) over the dark-frame sigma (eq. 5), normalised by the
-    scene-wide maximum (eq. 6), summed (eq. 7), averaged over views, top k (eq. 8).
-    """
+def select_bands_cmd(scene: Path, options: dict) -> None:
+    """Rank the bands by equivalent feature count (EFC) and keep the top k; write bands.json and a plot."""
     from brfgs.bands import plot_band_stats, select_bands
     from brfgs.data import atomic
 
-    sc = opt.load_scene(scene, downscale, value_range, allow_outside_links=allow_outside_links)
-    out = out if out is not None else Path.cwd() / f"bands_{sc.name}"
-    opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="bands.json")
-    sel = select_bands(sc, strategy, top=top, detect_max_px=detect_max_px, progress=not quiet, with_stats=True,
-                       min_separation_nm=min_separation)
+    o = apply_options(SelectBandsOptions(), options).validate()
+    sc = opt.read_scene(scene, o.read)
+    out = o.out if o.out is not None else Path.cwd() / f"bands_{sc.name}"
+    opt.check_output_dir(out, sc.root, overwrite=o.overwrite, marker="bands.json")
+    sel = select_bands(sc, o.strategy, top=o.top, detect_max_px=o.detect_max_px, progress=not o.quiet,
+                       with_stats=True, min_separation_nm=o.min_separation_nm)
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "bands.json", sel.to_json())
     plot_band_stats(sel, out / "bands.png")
@@ -77,4 +53,12 @@ def format_selection(sel, n_rows: int = 10) -> str:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("select-bands")(select_bands_cmd)
+    @config_command(app, "select-bands", SelectBandsOptions)
+    def command(scene: Path = opt.SceneArg, options: dict | None = None) -> None:
+        """Rank the bands by equivalent feature count (EFC) and keep the top k; write bands.json and a plot.
+
+        Per band and view: SIFT keypoints on the band as an 8-bit image (eq. 3), 5x5 median reflectance
+        around each (eq. 4) over the dark-frame sigma (eq. 5), normalised by the scene-wide maximum (eq. 6),
+        summed (eq. 7), averaged over views, top k (eq. 8).
+        """
+        select_bands_cmd(scene, options)

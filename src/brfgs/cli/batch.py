@@ -20,12 +20,6 @@ def register(app: typer.Typer) -> None:
     def batch_cmd(
         manifest: Path = typer.Argument(..., help="TOML, JSON or YAML list of scenes with their options "
                                         "(docs/scaling.md).", show_default=False),
-        out: Path = typer.Option(None, "--out", "-o", help="Output root: OUT/<scene name>/ per scene and "
-                                 "OUT/summary.md/.csv/.json (default: the manifest's 'out', else "
-                                 "<manifest folder>/<manifest name>_batch)."),
-        dry_run: bool = typer.Option(False, "--dry-run", help="Read and check the manifest, print what each scene "
-                                     "would run, start nothing."),
-        quiet: bool = typer.Option(False, "--quiet", help="No line per scene while the batch runs."),
         options: dict | None = None,
     ) -> None:
         """Run train -> evaluate -> products for every scene of MANIFEST as Ray tasks (locally, or on a cluster
@@ -35,11 +29,11 @@ def register(app: typer.Typer) -> None:
         from brfgs.workflows.manifest import read_manifest
 
         bc = apply_options(BatchConfig(), options)
-        m = read_manifest(manifest, out)
-        if dry_run:
+        m = read_manifest(manifest, bc.out)
+        if bc.dry_run:
             typer.echo("\n".join(plan_lines(m, bc)))
             return
-        res = run_batch(m, bc, say=(lambda *a: None) if quiet else typer.echo)
+        res = run_batch(m, bc, say=(lambda *a: None) if bc.quiet else typer.echo)
         typer.echo(res.markdown)
         typer.echo(f"summary: {res.paths['md']}  {res.paths['csv']}  {res.paths['json']}")
         for line in res.failures:

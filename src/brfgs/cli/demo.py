@@ -18,13 +18,13 @@ def register(app: typer.Typer) -> None:
     @config_command(app, "demo", DemoConfig)
     def demo_cmd(
         out: Path = typer.Argument(Path("brfgs-demo"), help="Folder for the demo's scene, runs and report."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
         options: dict | None = None,
     ) -> None:
         """Simulate -> select bands -> initialise -> autoencoder -> stage 1 -> stage 2 -> evaluate, BRF-GS vs SH."""
         from brfgs.workflows.demo import run_demo
 
-        say = (lambda *a: None) if quiet else typer.echo
-        report = run_demo(out, apply_options(DemoConfig(), options), progress=not quiet, say=say)
+        dc = apply_options(DemoConfig(), options)
+        say = (lambda *a: None) if dc.quiet else typer.echo
+        report = run_demo(out, dc, progress=not dc.quiet, say=say)
         typer.echo(report)
         typer.echo(f"report: {out / 'report.txt'}")

@@ -8,78 +8,30 @@ from pathlib import Path
 import typer
 
 from brfgs.cli import _options as opt
+from brfgs.cli._config import apply_options, config_command
 from brfgs.errors import UserError
+from brfgs.init.options import InitCommandOptions
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no pycolmap;
 # pycolmap must never be imported before zlib, see brfgs.init).
 
-BANDS_HELP = "Explicit band indices 'i,j,k' or a bands.json from select-bands (overrides --strategy)."
-RECTIFY_HELP = ("SfM: detect features on nadir-rectified copies of oblique views (uses only the cameras' orientation "
-                "from transforms.json; beyond the paper).")
-REFINEMENT_HELP = ("SfM: retriangulate and finish with a global bundle adjustment with a Cauchy loss (beyond the "
-                   "paper).")
 
-
-def init_cmd(
-    scene: Path = opt.SceneArg,
-    out: Path = typer.Argument(..., help="Output folder (points.ply, tracks.npz, cameras.json, init_report.json/.md, "
-                               "bands.json, sparse/0).",
-                               show_default=False),
-    poses: str = typer.Option("auto", "--poses", "-p",
-                              help="sfm: COLMAP incremental SfM aligned to ENU; known: triangulate with the poses "
-                                   "of transforms.json; auto: known when every frame has a transform_matrix, "
-                                   "else sfm (falling back to the nominal poses if SfM fails)."),
-    strategy: str = typer.Option(
-        "efc-top3", "--strategy", "-s",
-        help="Band strategy: efc, efc-top1, efc-top3, all, rgb, cir, central, max-snr, max-features, or "
-             "all-strategies (Table 2 geometry columns for the eight strategies, then init with efc-top3)."),
-    top: int = typer.Option(3, "--top", "-k", min=1, help="k of the 'efc' strategy."),
-    min_separation: float = typer.Option(0.0, "--min-separation-nm", min=0.0,
-                                         help="EFC strategies: chosen bands at least this far apart in wavelength "
-                                              "(beyond the paper; 0 = paper eq. 8)."),
-    bands: str = typer.Option(None, "--bands", help=BANDS_HELP),
-    max_features: int = typer.Option(8192, "--max-features", min=16, help="Features per view kept for matching."),
-    min_inliers: int = typer.Option(15, "--min-inliers", min=5, help="Verified matches a view pair needs."),
-    min_track: int = typer.Option(2, "--min-track", min=2, help="Drop sparse points seen in fewer views."),
-    max_point_error: float = typer.Option(2.0, "--max-point-error", min=0.1,
-                                          help="Drop sparse points with a larger mean reprojection error (px)."),
-    detect_upsample: int = typer.Option(0, "--detect-upsample", min=0,
-                                        help="Detect features on a xN cubic-upsampled copy (0: 2 for SfM on images up "
-                                             "to 256 px, else 1)."),
-    rectify: bool = typer.Option(True, "--rectify/--no-rectify", help=RECTIFY_HELP),
-    robust_refinement: bool = typer.Option(True, "--robust-refinement/--no-robust-refinement", help=REFINEMENT_HELP),
-    threads: int = typer.Option(1, "--threads", min=1, help="COLMAP mapping threads (1 gives deterministic mapping)."),
-    match_threads: int = typer.Option(1, "--match-threads", min=-1,
-                                      help="COLMAP matching threads (1 gives deterministic matches; -1 = all: about "
-                                           "1.7x faster matching on 2 cores, see BENCHMARKS.md)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (RANSAC, mapping)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a finished initialisation in OUT."),
-    keep_database: bool = typer.Option(False, "--keep-database", help="Keep OUT/colmap/database.db."),
-    downscale: int = opt.DownscaleOpt,
-    value_range: str = opt.ValueRangeOpt,
-    allow_outside_links: bool = opt.AllowLinksOpt,
-    verbose: bool = typer.Option(False, "--verbose", help="Show COLMAP's log."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output."),
-) -> None:
+def init_cmd(scene: Path, out: Path, options: dict) -> None:
     """Select geometry bands, then SfM or known-pose triangulation; write cameras, sparse points and a report."""
-    from brfgs.init import InitConfig, initialize
     from brfgs.init import colmap as C
+    from brfgs.init import initialize
     from brfgs.init.api import write_outputs
 
-    if match_threads == 0:
-        raise UserError("--match-threads must be >= 1 or -1 (all threads), got 0", field="match_threads")
-    C.set_verbose(verbose)
-    sc = opt.load_scene(scene, downscale, value_range, allow_outside_links=allow_outside_links)
-    opt.check_output_dir(out, sc.root, overwrite=overwrite, marker="init_report.json")
-    cfg = InitConfig(max_features=max_features, min_inliers=min_inliers, num_threads=threads, match_threads=match_threads, seed=seed,
-                     keep_database=keep_database, min_track_length=min_track, max_point_error_px=max_point_error,
-                     detect_upsample=detect_upsample, rectify=rectify, robust_refinement=robust_refinement)
-    if bands is not None:
-        selection, rows = _given_bands(bands, sc), None
+    o = apply_options(InitCommandOptions(), options).validate()
+    C.set_verbose(o.verbose)
+    sc = opt.read_scene(scene, o.read)
+    opt.check_output_dir(out, sc.root, overwrite=o.overwrite, marker="init_report.json")
+    if o.bands is not None:
+        selection, rows = _given_bands(o.bands, sc), None
     else:
-        selection, rows = _select(sc, strategy, top, min_separation, cfg, quiet)
-    res = initialize(sc, selection.selected, poses=poses, out_dir=None, config=cfg, selection=selection,
-                     progress=not quiet)
+        selection, rows = _select(sc, o.strategy, o.top, o.min_separation_nm, o.sfm, o.quiet)
+    res = initialize(sc, selection.selected, poses=o.poses, out_dir=None, config=o.sfm, selection=selection,
+                     progress=not o.quiet)
     if rows is not None:
         res.report["strategies"] = rows
         res.report["strategies_definition"] = ("each row: features of that strategy's bands, COLMAP exhaustive "
@@ -152,4 +104,12 @@ def _parse_bands(text: str, sc) -> list[int]:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("init")(init_cmd)
+    @config_command(app, "init", InitCommandOptions)
+    def command(
+        scene: Path = opt.SceneArg,
+        out: Path = typer.Argument(..., help="Output folder (points.ply, tracks.npz, cameras.json, init_report.json/"
+                                   ".md, bands.json, sparse/0).", show_default=False),
+        options: dict | None = None,
+    ) -> None:
+        """Select geometry bands, then SfM or known-pose triangulation; write cameras, sparse points and a report."""
+        init_cmd(scene, out, options)

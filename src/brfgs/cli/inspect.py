@@ -7,36 +7,26 @@ from pathlib import Path
 import typer
 
 from brfgs.cli import _options as opt
+from brfgs.cli._config import apply_options, config_command
+from brfgs.data.options import InspectOptions
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
 
-def inspect_cmd(
-    scene: Path = opt.SceneArg,
-    out: Path = typer.Option(None, "--out", "-o",
-                             help="Folder for views_polar.png and summary.json [default: ./inspect_<scene>]."),
-    downscale: int = opt.DownscaleOpt,
-    value_range: str = opt.ValueRangeOpt,
-    allow_outside_links: bool = opt.AllowLinksOpt,
-    split_seed: int = opt.SplitSeedOpt,
-    split_rule: str = opt.SplitRuleOpt,
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
-) -> None:
-    """Read and validate a scene; print frames, bands, split, angles, per-band noise/SNR and NaN counts."""
-    from brfgs.data import atomic
-    from brfgs.data.summary import format_summary, plot_views, summarize
-
-    sc = opt.load_scene(scene, downscale, value_range, split_seed, split_rule,
-                        allow_outside_links=allow_outside_links)
-    out = out if out is not None else Path.cwd() / f"inspect_{sc.name}"
-    opt.check_output_dir(out, sc.root, overwrite=True)
-    summary = summarize(sc, progress=not quiet)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic.write_json(out / "summary.json", summary.to_json())
-    plot_views(sc, out / "views_polar.png")
-    typer.echo(format_summary(summary))
-    typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")
-
-
 def register(app: typer.Typer) -> None:
-    app.command("inspect")(inspect_cmd)
+    @config_command(app, "inspect", InspectOptions)
+    def inspect_cmd(scene: Path = opt.SceneArg, options: dict | None = None) -> None:
+        """Read and validate a scene; print frames, bands, split, angles, per-band noise/SNR and NaN counts."""
+        from brfgs.data import atomic
+        from brfgs.data.summary import format_summary, plot_views, summarize
+
+        o = apply_options(InspectOptions(), options)
+        sc = opt.read_scene(scene, o.read, split_seed=o.split_seed)
+        out = o.out if o.out is not None else Path.cwd() / f"inspect_{sc.name}"
+        opt.check_output_dir(out, sc.root, overwrite=True)
+        summary = summarize(sc, progress=not o.quiet)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic.write_json(out / "summary.json", summary.to_json())
+        plot_views(sc, out / "views_polar.png")
+        typer.echo(format_summary(summary))
+        typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")

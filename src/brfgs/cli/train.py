@@ -1,8 +1,9 @@
 """``brfgs train`` / ``brfgs evaluate`` / ``brfgs ablate``: two-stage BRF-GS training and its evaluation.
 
 The training options are generated from :class:`brfgs.train.config.TrainConfig` (every field is
-an option; ``brfgs train --help``). Command bodies import the library lazily so that
-``brfgs --help`` stays fast (no torch or numba at start-up).
+an option; ``brfgs train --help`` lists the method's, ``--help-all`` the experimental and expert
+ones too), the evaluation's from :class:`brfgs.evaluation.options.EvaluateOptions`. Command bodies
+import the library lazily so that ``brfgs --help`` stays fast (no torch or numba at start-up).
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ import typer
 
 from brfgs.cli._config import apply_options, config_command, read_config_file
 from brfgs.errors import UserError
+from brfgs.evaluation.options import EvaluateOptions
 from brfgs.train.config import TrainConfig
+from brfgs.train.options import STUDIES, STUDY_FIELDS, AblateOptions, TrainCommandOptions
 from brfgs.train.presets import preset
 
-# options an ablation study sets itself for each of its runs
-STUDY_FIELDS = ("variant", "components", "joint", "band_strategy")
+
 
 
 def build_config(options: dict, config_file: Path | None = None) -> TrainConfig:
@@ -45,24 +47,18 @@ def _echo(quiet: bool):
     return (lambda *a: None) if quiet else typer.echo
 
 
+def _split(options: dict | None) -> tuple[dict, dict]:
+    """(the training options given, the command's own) of a command's ``options`` {path: value}."""
+    options = dict(options or {})
+    return ({k[1:]: v for k, v in options.items() if k[0] == "train"},
+            {k: v for k, v in options.items() if k[0] != "train"})
+
+
 def register(app: typer.Typer) -> None:
-    @config_command(app, "train", TrainConfig)
+    @config_command(app, "train", TrainCommandOptions)
     def train_cmd(
         scene: Path = typer.Argument(..., help="Scene folder (transforms.json + images/)."),
         out: Path = typer.Argument(..., help="Run folder (created; an unfinished run there is resumed)."),
-        config: Path = typer.Option(None, "--config", help="A run's config.json: train with exactly its options "
-                                    "(options given here override the file; an option the file predates takes "
-                                    "its value of then)."),
-        from_stage1: Path = typer.Option(None, "--from-stage1", help="Start stage 2 from another run's "
-                                         "checkpoints/stage1.safetensors."),
-        evaluate: bool = typer.Option(True, "--evaluate/--no-evaluate", help="Evaluate the test views after training."),
-        overwrite: bool = typer.Option(False, "--overwrite", help="Replace a finished run in OUT."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
-        nproc: int = typer.Option(1, "--nproc", min=1, help="Data-parallel training in this many local processes "
-                                  "(gloo; NCCL on GPUs): each renders its share of every step's --views-per-step "
-                                  "views (docs/scaling.md)."),
-        distributed: bool = typer.Option(False, "--distributed", help="Be one rank of a process group started by "
-                                         "torchrun (`torchrun --nproc-per-node N -m brfgs train ... --distributed`)."),
         options: dict | None = None,
     ) -> None:
         """Train BRF-GS (or a baseline) on SCENE into OUT; rerun to resume; Ctrl-C keeps a checkpoint."""
@@ -70,35 +66,32 @@ def register(app: typer.Typer) -> None:
         from brfgs.train.distributed import run_as_rank
         from brfgs.train.trainer import train_parallel, train_rank
 
-        cfg = build_config(options, config)
-        if distributed:
-            if nproc > 1:
+        given, own = _split(options)
+        o = apply_options(TrainCommandOptions(), own)
+        cfg = build_config(given, o.config)
+        if o.nproc < 1:
+            raise UserError(f"nproc must be >= 1, got {o.nproc}", field="--nproc")
+        if o.distributed:
+            if o.nproc > 1:
                 raise UserError("give either --distributed (under torchrun) or --nproc N", field="--nproc")
-            if not run_as_rank(train_rank, (scene, out, cfg, overwrite, from_stage1, quiet), cfg.backend):
+            if not run_as_rank(train_rank, (scene, out, cfg, o.overwrite, o.from_stage1, o.quiet), cfg.backend):
                 return  # ranks other than 0 leave the evaluation to rank 0
             path = out / "model.safetensors"
         else:
-            path = train_parallel(nproc, scene, out, cfg, overwrite=overwrite, from_stage1=from_stage1, quiet=quiet)
+            path = train_parallel(o.nproc, scene, out, cfg, overwrite=o.overwrite, from_stage1=o.from_stage1,
+                                  quiet=o.quiet)
         typer.echo(f"model: {path}")
-        if evaluate:
+        if o.evaluate:
             for split in ("validation", "test") if cfg.validation else ("test",):
-                res = evaluate_run(out, scene, backend=cfg.backend, progress=not quiet, split=split)
+                res = evaluate_run(out, scene, backend=cfg.backend, progress=not o.quiet, split=split)
                 for line in summary_lines(res):
                     typer.echo(f"[{split}] {line}" if cfg.validation else line)
                 typer.echo(f"metrics: {out / metrics_file(split)}")
 
-    @app.command("evaluate")
+    @config_command(app, "evaluate", EvaluateOptions)
     def evaluate_cmd(
         out: Path = typer.Argument(..., help="Run folder of brfgs train."),
-        scene: Path = typer.Option(None, "--scene", help="Scene folder (default: the one recorded in the model)."),
-        backend: str = typer.Option(None, "--backend", help="Rasterizer backend: auto | torch | cpu | cuda "
-                                    "(default: the one the model was trained with, so the digits match training's)."),
-        images: bool = typer.Option(True, "--images/--no-images", help="Write ENVI renders and CIR PNGs."),
-        split: str = typer.Option("test", "--split", help="Views to score: test (metrics.json), validation "
-                                  "(metrics_validation.json; runs trained with --validation) or train "
-                                  "(metrics_train.json: the fit of the training views, to tell a model that "
-                                  "underfits from one that does not generalise)."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+        options: dict | None = None,
     ) -> None:
         """Render and score the views of --split (the test views by default); write OUT/metrics.json (per view,
         per view ring and mean, with each held-out view's angle to the nearest training view; on simulated scenes
@@ -106,23 +99,18 @@ def register(app: typer.Typer) -> None:
         comparison PNGs."""
         from brfgs.evaluation.evaluate import evaluate_run, metrics_file, summary_lines
 
-        res = evaluate_run(out, scene, backend=backend, write_images=images, progress=not quiet, split=split)
+        o = apply_options(EvaluateOptions(), options).validate()
+        res = evaluate_run(out, o.scene, backend=o.backend, write_images=o.images, progress=not o.quiet, split=o.split)
         for line in summary_lines(res):
             typer.echo(line)
-        typer.echo(f"metrics: {out / metrics_file(split)}")
-        if images and split == "test":
+        typer.echo(f"metrics: {out / metrics_file(o.split)}")
+        if o.images and o.split == "test":
             typer.echo(f"renders: {out / 'eval' / 'renders'}  CIR comparisons: {out / 'eval' / 'cir'}")
 
-    @config_command(app, "ablate", TrainConfig, skip=STUDY_FIELDS)
+    @config_command(app, "ablate", AblateOptions, skip=tuple("train_" + f for f in STUDY_FIELDS))
     def ablate_cmd(
         scene: Path = typer.Argument(..., help="Scene folder."),
         out: Path = typer.Argument(..., help="Folder for the study's runs and tables."),
-        study: str = typer.Option(..., "--study", help="kernels (Table 3) | training (Table 4) | bands (Table 2) | "
-                                  "baselines (Table 1) | additions (each addition beyond the paper removed from the "
-                                  "options, and added to the paper's method)."),
-        only: str = typer.Option(None, "--only", help="Comma-separated run names of the study to train now (the "
-                                 "tables hold the finished ones), e.g. default,paper,no_lr_spec."),
-        quiet: bool = typer.Option(False, "--quiet"),
         options: dict | None = None,
     ) -> None:
         """Train the variants of one of the paper's tables on SCENE and write OUT/table_<study>.{md,csv}
@@ -130,8 +118,12 @@ def register(app: typer.Typer) -> None:
         the training options apply to every run (the study sets variant, components, joint, band strategy)."""
         from brfgs.workflows.ablate import ablate
 
-        names = [x.strip() for x in only.split(",") if x.strip()] if only else None
-        res = ablate(scene, out, study, build_config(options), progress=not quiet, log=_echo(quiet), only=names)
+        given, own = _split(options)
+        o = apply_options(AblateOptions(study=""), own)
+        if o.study not in STUDIES:
+            raise UserError(f"study must be one of {', '.join(STUDIES)}, got {o.study!r}", field="--study")
+        names = list(o.only) if o.only else None
+        res = ablate(scene, out, o.study, build_config(given), progress=not o.quiet, log=_echo(o.quiet), only=names)
         for key in ("paths", "paths_validation"):
             if key in res:
                 typer.echo(Path(res[key]["md"]).read_text())

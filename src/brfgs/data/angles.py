@@ -1,4 +1,4 @@
-"""Angle conventions of ../shared/conventions.md.
+"""Angle conventions of docs/data-format.md.
 
 Zenith θ from +z; azimuth φ clockwise from north (+y) toward east (+x), of the
 direction from the target toward the sun or the sensor. Unit vector

@@ -5,7 +5,7 @@ A scene may give its ``origin`` in ``transforms.json``::
     "origin": {"latitude_deg": 48.1, "longitude_deg": 11.5, "altitude_m": 520.0},   # WGS 84, ellipsoidal height
     "crs": "EPSG:32632"                                                            # optional map CRS
 
-The scene's frame (x east, y north, z up, metres; conventions.md) is then the local tangent plane
+The scene's frame (x east, y north, z up, metres; docs/data-format.md) is then the local tangent plane
 (topocentric ENU) at that point of the WGS 84 ellipsoid. Map products are written in ``crs``, by
 default the UTM zone of the origin (WGS 84 / UTM, EPSG 326zz north, 327zz south).
 

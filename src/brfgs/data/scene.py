@@ -1,4 +1,4 @@
-"""Scene reader for the data-set layout of ``../shared/conventions.md``.
+"""Scene reader for the data-set layout of docs/data-format.md.
 
 A scene folder holds ``transforms.json`` (cameras, wavelengths, sun angles, frames),
 ``images/`` with one reflectance cube per frame (ENVI, ``.npy`` [H, W, B] or multi-band
@@ -243,7 +243,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                roi: tuple[int, int, int, int] | None = None,
                value_range: tuple[float, float] = DEFAULT_VALUE_RANGE, split_seed: int = 0,
                split_rule: str = DEFAULT_SPLIT_RULE, allow_outside_links: bool = False, validation: bool = False) -> Scene:
-    """Read and validate the scene folder ``path`` (see conventions.md, "Data set layout").
+    """Read and validate the scene folder ``path`` (see docs/data-format.md, "Data set layout").
 
     Args:
         downscale: integer area-average factor applied while reading.

@@ -13,9 +13,8 @@ permutation). Which views of a ring are held out is the split's rule:
   view within 20° of a training view, and no two test views side by side on a ring or one above
   the other): the test measures interpolation between the flight's views, as LLFF's and
   Mip-NeRF 360's every-n-th hold-out does for a camera path. A random choice can hold out
-  neighbours and leave a hole twice the spacing (docs/results.md, Session 29: test views 31°
-  from any training view).
-- ``random`` (the rule before Session 30): a seeded permutation within each ring.
+  neighbours and leave a hole twice the spacing (test views 31° from any training view).
+- ``random``: a seeded permutation within each ring (models of format 1 that name it).
 
 The validation split takes 1 in 6 of the training views the same way (seed + 1; with ``spread``,
 also farthest from the test views); it is what settings are chosen on, never the test views.
@@ -32,9 +31,17 @@ from brfgs.data.angles import direction_from_angles_deg
 RING_TOLERANCE_DEG = 2.5  # view zeniths closer than this belong to one ring
 SPLIT_RULES = ("spread", "random")
 DEFAULT_SPLIT_RULE = "spread"
-SPLIT_RULE_BEFORE = "random"  # the rule of run folders and models written before the option (Session 30)
+SPLIT_RULE_BEFORE = "random"  # the rule of models of format 1 that do not name one
 TEST_EVERY = 7  # 6 train : 1 test
 VALIDATION_EVERY = 6  # of the training views, 1 in 6 for validation (when asked for)
+
+
+def split_rule_of(options: dict) -> str:
+    """The split rule a model was trained with, from its stored training options: "spread" for
+    today's models; models of format 1 name theirs, or predate the option and used "random"."""
+    if "format_version" in options:
+        return DEFAULT_SPLIT_RULE
+    return str(options.get("split_rule", SPLIT_RULE_BEFORE))
 
 
 def view_rings(zenith_deg: np.ndarray | list[float], tol_deg: float = RING_TOLERANCE_DEG) -> np.ndarray:
@@ -157,8 +164,8 @@ def nearest_view_angle_deg(held_dirs: np.ndarray, train_dirs: np.ndarray) -> np.
     direction [N, 3] (unit vectors, scene to camera) -> [M].
 
     How far a held-out view is from what training saw: a model interpolates near-nadir views 5-9°
-    from a training view and extrapolates oblique views 25-31° from one (docs/results.md, Sessions
-    16 and 29), so a split's metrics depend on it.
+    from a training view and extrapolates oblique views 25-31° from one (docs/results.md), so a
+    split's metrics depend on it.
     """
     held = np.asarray(held_dirs, dtype=np.float64).reshape(-1, 3)
     train = np.asarray(train_dirs, dtype=np.float64).reshape(-1, 3)
@@ -187,8 +194,7 @@ def view_spacing_deg(dirs: np.ndarray) -> np.ndarray:
     The layout's angular sampling: when such a view is held out, no training view is nearer than
     this, whatever the split. On the AIR-BRF layout the 58° views are 20° from any other view (the
     38° view below) and, held out, score 6.4 dB below the 18° ring (5°) on the 64² testsite; 24
-    azimuths per ring (12.7°) make it 3.1-3.4 dB, a 53° ring (5°) 2.7-2.9 dB (docs/results.md,
-    Session 31).
+    azimuths per ring (12.7°) make it 3.1-3.4 dB, a 53° ring (5°) 2.7-2.9 dB (docs/results.md).
     """
     d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     if len(d) < 2:

@@ -108,7 +108,7 @@ def _spacing_line(spacing: dict[str, float]) -> str:
     return ("view spacing     " + ", ".join(f"{r} deg: {a:.1f}" for r, a in spacing.items())
             + " (per ring, the largest angle from one of its views to its nearest other view, which no split can "
             "shorten; on the 64^2 testsite the 58 deg ring scores 6.4 dB below the 18 deg ring at 20 deg, 3.1-3.4 dB "
-            "at 12.7 and 2.7-2.9 dB at 5: docs/results.md, Session 31)")
+            "at 12.7 and 2.7-2.9 dB at 5: docs/flights.md)")
 
 
 def _held_out_line(nearest_deg: dict[str, float]) -> str:

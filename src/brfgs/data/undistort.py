@@ -8,7 +8,7 @@ first frame's when the top level has none) with OpenCV (``initUndistortRectifyMa
 bilinear): the rest of the pipeline — rays, the rasterizer, metrics — sees ideal pinhole images.
 Target pixels whose ray falls outside the frame's image are NaN (masked like any invalid pixel).
 
-Pixel convention: brfgs's intrinsics put pixel centres at +0.5 (conventions.md), OpenCV's at integer
+Pixel convention: brfgs's intrinsics put pixel centres at +0.5 (docs/data-format.md), OpenCV's at integer
 coordinates; the maps convert between them (c_opencv = c − 0.5).
 """
 

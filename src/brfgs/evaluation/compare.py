@@ -3,7 +3,7 @@
 Issue 15 asks for margins between models (BRF-GS against SH-3: ≥ 1 dB CIR PSNR, ≤ 0.75× SAM) that
 are decided on a handful of held-out views (7 test views of a 49-view flight, 2 of them at 58°).
 ``brfgs compare A B`` reads the per-view scores that ``brfgs evaluate`` wrote for both runs
-(conventions.md, ``metrics.json``) and reports, overall and per view ring:
+(docs/data-format.md, ``metrics.json``) and reports, overall and per view ring:
 
 - the PSNR margin, mean_v(PSNR_A) − mean_v(PSNR_B) in dB (means over views, as metrics.json's "mean");
 - the SAM ratio, mean_v(SAM_A) / mean_v(SAM_B);

@@ -1,6 +1,6 @@
 """``brfgs evaluate OUT``: render every test view of a trained run and score it.
 
-Writes ``OUT/metrics.json`` (conventions.md schema: per view and mean psnr, ssim, lpips,
+Writes ``OUT/metrics.json`` (docs/data-format.md schema: per view and mean psnr, ssim, lpips,
 sam, psnr_spectral, and the mean per view ring under "rings"; each view and ring also carries the
 angle to the nearest training view, "nearest_train_view_deg"; "observed" = the test images,
 "truth" = the clean cubes of
@@ -25,7 +25,7 @@ from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
-from brfgs.data.splits import SPLIT_RULE_BEFORE
+from brfgs.data.splits import split_rule_of
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, render
 
@@ -41,7 +41,7 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "te
         raise UserError("the model was trained on every training view: there is no validation split "
                         "(train with --validation)", field="split")
     scene = read_scene(root, downscale=cfg["downscale"], split_seed=cfg["split_seed"],
-                       split_rule=cfg.get("split_rule", SPLIT_RULE_BEFORE),
+                       split_rule=split_rule_of(cfg),
                        value_range=tuple(cfg["value_range"]), validation=bool(cfg.get("validation", False)),
                        allow_outside_links=bool(cfg.get("allow_outside_links", False)))
     where = root / "transforms.json"
@@ -114,7 +114,7 @@ def _settings(lm: TrainedModel, scene, backend: str) -> dict:
         "cir_indices": list(lm.cir_indices),
         "cir_wavelengths_nm": [float(scene.wavelengths_nm[j]) for j in lm.cir_indices],
         "cir_scale": [float(v) for v in lm.cir_scale],
-        "metric_definitions": "conventions.md: PSNR/SSIM/LPIPS on CIR composites (data range 1), SAM (rad) and "
+        "metric_definitions": "docs/data-format.md: PSNR/SSIM/LPIPS on CIR composites (data range 1), SAM (rad) and "
                               "psnr_spectral over all bands; SSIM 11x11 Gaussian window sigma 1.5",
         "autoencoder": lm.meta.get("autoencoder_report", {}).get("test"),
         "train_timings_s": lm.meta.get("timings_s"),

@@ -1,4 +1,4 @@
-"""Image-quality and spectral metrics (conventions.md "Splits and metrics").
+"""Image-quality and spectral metrics (docs/data-format.md "Splits and metrics").
 
 All functions take numpy arrays (any float dtype; computed in float64) of shape
 ``[H, W, C]`` and an optional boolean ``mask[H, W]`` of valid pixels. Pixels that are
@@ -195,7 +195,7 @@ def image_metrics(
     spectral: bool = True,
     spectral_reason: str = "",
 ) -> dict:
-    """All metrics of one view as a JSON-ready dict (conventions.md keys).
+    """All metrics of one view as a JSON-ready dict (docs/data-format.md keys).
 
     pred_cube/target_cube: [H, W, B] reflectance (may be None when ``spectral`` is False);
     pred_cir/target_cir: [H, W, 3] CIR composites in [0, 1]. A metric that cannot be

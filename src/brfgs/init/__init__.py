@@ -10,8 +10,17 @@ and only through this package.
 """
 
 import zlib  # noqa: F401  (must be imported before pycolmap)
+import importlib
 
-from brfgs.init.api import (POSE_MODES, InitConfig, InitResult, initialize, strategy_ablation,
-                            write_points_ply)
+# Names exported here load on first use (PEP 562), so that the command line can read the options
+# (brfgs.init.options) without OpenCV and the SfM code.
+_EXPORTS = {"brfgs.init.options": ("POSE_MODES", "InitConfig"),
+            "brfgs.init.api": ("InitResult", "initialize", "strategy_ablation", "write_points_ply")}
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
 
-__all__ = ["POSE_MODES", "InitConfig", "InitResult", "initialize", "strategy_ablation", "write_points_ply"]
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'brfgs.init' has no attribute {name!r}")
+    return getattr(importlib.import_module(_WHERE[name]), name)

@@ -40,41 +40,15 @@ from brfgs.bands.select import (STRATEGY_LABELS, TABLE2_STRATEGIES, _block_mean,
 from brfgs.data.cameras import project_points
 from brfgs.errors import UserError
 from brfgs.init.align import umeyama_robust
-from brfgs.init.features import (DEFAULT_MAX_FEATURES, SFM_CONTRAST_THRESHOLD, ViewFeatures,
-                                 extract_view_features, nadir_rectification)
+from brfgs.init.features import ViewFeatures, extract_view_features, nadir_rectification
+from brfgs.init.options import POSE_MODES, InitConfig  # noqa: F401  (re-exported)
+from brfgs.init.plane import plane_arrays
+
+MIN_TRIANGULATED = 8  # fewer known-pose points than this: the scene has too little texture to start from them
 from brfgs.init.outputs import (DEFINITIONS, fmt_or_na, report_markdown,  # noqa: F401  (re-exported)
                                 strategies_table, write_outputs, write_points_ply)
 from brfgs.init.truth import truth_checks
 
-POSE_MODES = ("known", "sfm", "auto")
-
-
-@dataclass
-class InitConfig:
-    """Options of :func:`initialize` (the CLI exposes them)."""
-
-    max_features: int = DEFAULT_MAX_FEATURES   # per view, after pooling the selected bands
-    contrast_threshold: float = SFM_CONTRAST_THRESHOLD  # OpenCV SIFT (COLMAP-equivalent peak threshold)
-    root_sift: bool = True                      # RootSIFT descriptors (COLMAP's default normalisation)
-    min_inliers: int = 15                       # two-view verification and mapping
-    init_min_inliers: int | None = None         # initial pair; None: min(100, max(min_inliers, half the best pair))
-    min_registered_fraction: float = 0.5        # SfM must register at least this fraction of views
-    detect_max_px: int | None = 2048            # detect on an integer-downscaled copy above this size
-    detect_upsample: int = 0                    # detect on a ×n cubic-upsampled copy; 0 = auto (2 up to 256 px)
-    num_threads: int = 1                        # COLMAP mapping threads (1 = deterministic mapping)
-    match_threads: int = 1                      # COLMAP matching threads (1 = deterministic: with more, the
-    #                                             two-view RANSAC draws depend on thread scheduling; -1 = all)
-    guided_matching: bool = True                # SfM: re-match verified pairs along their epipolar geometry
-    rectify: bool = True                        # SfM: detect on nadir-rectified copies of oblique views (beyond
-    #                                             the paper; uses only the cameras' orientation from transforms.json)
-    mapper_max_error_px: float = 2.0            # SfM: COLMAP's filter/merge/complete reprojection thresholds
-    robust_refinement: bool = True              # SfM: retriangulation + global BA with a Cauchy loss at the end
-    #                                             (beyond the paper; see colmap.refine_reconstruction)
-    robust_loss_px: float = 1.0                 # scale of that Cauchy loss (pixels)
-    min_track_length: int = 2                   # sparse points seen in fewer views are dropped
-    max_point_error_px: float = 2.0             # sparse points with a larger mean reprojection error are dropped
-    seed: int = 0
-    keep_database: bool = False                 # keep OUT/colmap/database.db
 
 
 @dataclass
@@ -237,6 +211,9 @@ def _sfm_failure(scene, stats, registered_names: list[str], reason: str) -> User
     weakest = [f"{names[i]} ({int(stats.verified_per_image[i])} verified matches with "
                f"{int(stats.verified_pairs_per_image[i])} views)" for i in order[:8]]
     listing = ", ".join(failed[:20]) + (f" and {len(failed) - 20} more" if len(failed) > 20 else "")
+    if stats.verified_total < MIN_TRIANGULATED * len(names):
+        reason += (f"; the images have too little texture for SfM ({stats.verified_total} verified matches over "
+                   f"{len(names)} views)")
     return UserError(
         f"SfM failed: {reason}. Views not registered: {listing or 'none'}. Views with the fewest verified "
         f"matches: {', '.join(weakest)}. Matching success rate "
@@ -338,13 +315,12 @@ def _reconstruct(scene, feats, db_path: Path, work: Path, stats, config: InitCon
             rec.mode = "known"
     if rec.mode == "known":
         colmap_rec = C.triangulate_known(db_path, work, names, known_c2w, seed=config.seed,
-                                         num_threads=config.num_threads, min_inliers=config.min_inliers)
+                                         num_threads=config.threads, min_inliers=config.min_inliers)
         rec.arr = C.reconstruction_arrays(colmap_rec, names)
-        if len(rec.arr.points) == 0:
-            raise UserError(
-                f"triangulation with the known poses produced no points ({stats.verified_total} verified "
-                f"matches over {stats.pairs_verified} view pairs); check the poses in transforms.json and the "
-                f"selected bands", file=Path(scene.root) / "transforms.json", field="frames")
+        if len(rec.arr.points) < MIN_TRIANGULATED:  # too little texture: start from the ground plane
+            rec.fallback = (f"{len(rec.arr.points)} points triangulated from {stats.verified_total} verified "
+                            f"matches (too little texture); started from the ground plane the cameras look at")
+            rec.arr = plane_arrays(known_c2w, scene.intrinsics)
     return rec
 
 
@@ -434,13 +410,13 @@ def _run_sfm(scene, db_path, work, stats, config: InitConfig, names, known_c2w):
     init_min = config.init_min_inliers
     if init_min is None:  # COLMAP's 100 unless small images cannot give that many
         init_min = int(min(100, max(config.min_inliers, 0.5 * stats.max_pair_verified)))
-    rec = C.incremental_mapping(db_path, work, seed=config.seed, num_threads=config.num_threads,
+    rec = C.incremental_mapping(db_path, work, seed=config.seed, num_threads=config.threads,
                                 min_inliers=config.min_inliers, init_min_inliers=init_min,
                                 max_error_px=config.mapper_max_error_px)
     if rec is None:
         raise _sfm_failure(scene, stats, [], "incremental mapping found no initial pair")
     if config.robust_refinement:
-        rec = C.refine_reconstruction(rec, db_path, seed=config.seed, num_threads=config.num_threads,
+        rec = C.refine_reconstruction(rec, db_path, seed=config.seed, num_threads=config.threads,
                                       min_inliers=config.min_inliers, max_error_px=config.mapper_max_error_px,
                                       loss_scale_px=config.robust_loss_px)
     arr = C.reconstruction_arrays(rec, names)

@@ -3,7 +3,7 @@
 **Import** (:func:`import_colmap`): a COLMAP sparse model (binary or text, as COLMAP writes it), the
 folder of hyperspectral cubes whose file stems are the COLMAP image names' stems (``view_00.png`` →
 ``images/view_00.hdr``, ``.tif``, ``.tiff`` or ``.npy``) and a small JSON sidecar become a
-``transforms.json`` (conventions.md) in the project folder. The sidecar holds what COLMAP does not
+``transforms.json`` (docs/data-format.md) in the project folder. The sidecar holds what COLMAP does not
 know: ``wavelengths_nm`` (else read by the scene reader's checks from the cubes), ``fwhm_nm``,
 ``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``,
 per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azimuth_deg": ...,
@@ -11,8 +11,9 @@ per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azi
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
 by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
 
-Cameras: PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL and RADIAL map to transforms.json's PINHOLE
-/ OPENCV keys (COLMAP's pixel centres are at +0.5, as brfgs's); the first image's camera is the
+Cameras: PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL, RADIAL and FULL_OPENCV (with k3..k6 = 0)
+map to transforms.json's PINHOLE / OPENCV keys (COLMAP's pixel centres are at +0.5, as brfgs's); every other
+model is refused in one line naming it. The first image's camera is the
 top-level camera, frames of other cameras carry their own keys (resampled on reading, see
 :mod:`brfgs.data.undistort`). Poses: COLMAP's cam_from_world (OpenCV axes) → OpenGL camera-to-world.
 
@@ -52,21 +53,31 @@ def read_colmap_model(path: Path):
         raise UserError(f"COLMAP model could not be read ({exc})", file=path) from None
 
 
+# COLMAP camera models brfgs reads: name -> (fx, fy, cx, cy, k1, k2, p1, p2) of its parameters p, in
+# OpenCV's radial-tangential model (transforms.json's OPENCV); the pinhole ones have no distortion.
+_PINHOLE_MODELS = {"SIMPLE_PINHOLE": lambda p: (p[0], p[0], p[1], p[2]),
+                   "PINHOLE": lambda p: (p[0], p[1], p[2], p[3])}
+_OPENCV_MODELS = {"SIMPLE_RADIAL": lambda p: (p[0], p[0], p[1], p[2], p[3], 0.0, 0.0, 0.0),
+                  "RADIAL": lambda p: (p[0], p[0], p[1], p[2], p[3], p[4], 0.0, 0.0),
+                  "OPENCV": lambda p: tuple(p[:8]),
+                  "FULL_OPENCV": lambda p: tuple(p[:8])}  # only when its k3..k6 are 0 (checked)
+SUPPORTED_CAMERA_MODELS = tuple(_PINHOLE_MODELS) + tuple(_OPENCV_MODELS)
+
+
 def _camera_keys(cam, where: Path) -> dict:
-    """transforms.json camera keys of a pycolmap camera."""
+    """transforms.json camera keys of a pycolmap camera; UserError naming the model and the camera for a
+    model brfgs cannot represent exactly."""
     name, p = cam.model.name, [float(v) for v in cam.params]
     keys = {"w": int(cam.width), "h": int(cam.height)}
-    if name == "SIMPLE_PINHOLE":
-        return {"camera_model": "PINHOLE", "fl_x": p[0], "fl_y": p[0], "cx": p[1], "cy": p[2], **keys}
-    if name == "PINHOLE":
-        return {"camera_model": "PINHOLE", "fl_x": p[0], "fl_y": p[1], "cx": p[2], "cy": p[3], **keys}
-    dist = {"SIMPLE_RADIAL": (p[0], p[0], p[1], p[2], p[3], 0.0, 0.0, 0.0),
-            "RADIAL": (p[0], p[0], p[1], p[2], p[3], p[4], 0.0, 0.0),
-            "OPENCV": tuple(p)}.get(name)
-    if dist is None:
-        raise UserError(f"COLMAP camera model {name} not supported (PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL, "
-                        "RADIAL are)", file=where, field=f"camera {cam.camera_id}")
-    fx, fy, cx, cy, k1, k2, p1, p2 = dist
+    field = f"camera {cam.camera_id}"
+    if name not in SUPPORTED_CAMERA_MODELS or (name == "FULL_OPENCV" and any(p[8:])):
+        extra = " with k3..k6 not 0" if name == "FULL_OPENCV" else ""
+        raise UserError(f"COLMAP camera model {name}{extra} is not supported ({', '.join(SUPPORTED_CAMERA_MODELS)} "
+                        "are; FULL_OPENCV with k3..k6 = 0)", file=where, field=field)
+    if name in _PINHOLE_MODELS:
+        fx, fy, cx, cy = _PINHOLE_MODELS[name](p)
+        return {"camera_model": "PINHOLE", "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **keys}
+    fx, fy, cx, cy, k1, k2, p1, p2 = _OPENCV_MODELS[name](p)
     return {"camera_model": "OPENCV", "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **keys,
             "k1": k1, "k2": k2, "p1": p1, "p2": p2}
 

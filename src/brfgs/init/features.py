@@ -15,13 +15,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from brfgs.bands.efc import detect_keypoints, make_sift, stretch_to_uint8
+from brfgs.init.options import DEFAULT_MAX_FEATURES, SFM_CONTRAST_THRESHOLD  # noqa: F401  (re-exported)
 
-DEFAULT_MAX_FEATURES = 8192
 DEDUPE_PX = 1.5
 DEDUPE_ANGLE_RAD = 0.5  # descriptors closer than this are the same feature (COLMAP matches up to 0.7)
-# OpenCV contrastThreshold equivalent to COLMAP's SIFT peak threshold (0.02 / 3 octave layers);
-# Lowe's 0.04 (used for EFC) finds about half as many features.
-SFM_CONTRAST_THRESHOLD = 0.02
+# SFM_CONTRAST_THRESHOLD: OpenCV contrastThreshold equivalent to COLMAP's SIFT peak threshold (0.02 / 3
+# octave layers); Lowe's 0.04 (used for EFC) finds about half as many features.
 
 
 @dataclass

@@ -12,7 +12,7 @@ map's gradient (:func:`depth_normals`), thinned on a voxel grid to a target coun
 (:func:`voxel_thin`; :func:`dense_cloud` runs it all).
 
 Everything runs on images area-downscaled to at most ``max_size_px`` (a start for the Gaussians
-needs no more), in float32 PyTorch on the CPU. Cameras follow conventions.md (OpenGL
+needs no more), in float32 PyTorch on the CPU. Cameras follow docs/data-format.md (OpenGL
 camera-to-world); pixel centres lie at +0.5.
 """
 

@@ -7,7 +7,7 @@ cross-correlation over a small window, all bands pooled (:func:`windowed_ncc`,
 planes are swept: fronto-parallel planes of the reference camera and level planes z = const
 (Gallup et al. 2007), each spaced so that the image moves about ``plane_step_px`` between planes
 (:func:`parallax_spaced`); a pixel keeps the better family's best plane, refined by a parabola
-through the scores beside it (:func:`depth_map`). Cameras follow conventions.md (OpenGL
+through the scores beside it (:func:`depth_map`). Cameras follow docs/data-format.md (OpenGL
 camera-to-world, converted to OpenCV axes by :func:`cv_pose`); pixel centres lie at +0.5.
 """
 

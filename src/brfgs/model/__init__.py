@@ -6,7 +6,8 @@ render path.
     rv = render(tm, tm.cameras[0])                       # latent, cube [H, W, B], cir, alpha, depth
     rv = render(tm, cam, sun_zenith_deg=50, normals=True)
 
-Modules: gaussians.py (parameter container, initialisation), densify.py (split/clone/prune),
+Modules: gaussians.py (parameter container, initialisation), densify.py (split/clone/prune), mcmc.py
+(3DGS-MCMC relocation), densify_config.py (the strategies' options),
 optim.py (Adam over named tensors), camera.py (cameras, scene description), features.py
 (per-Gaussian features: stage-1 colours, the head's latent, geometry channels), rendering.py
 (rasterize, composite, decode: the pieces), view.py (:func:`render`), trained.py (:class:`TrainedModel`),
@@ -20,7 +21,7 @@ import importlib
 _EXPORTS = {
     "brfgs.model.camera": ("Camera", "camera_from_c2w", "camera_from_intrinsics", "scene_description"),
     "brfgs.model.densify": ("DensifyState", "refine", "reset_opacity"),
-    "brfgs.model.densify_config": ("DensifyConfig",),
+    "brfgs.model.densify_config": ("ADCConfig", "MCMCConfig"),
     "brfgs.model.gaussians": ("APPEARANCES", "GaussianModel", "init_from_points", "scene_extent", "surface_fill"),
     "brfgs.model.optim": ("NamedAdam",),
     "brfgs.model.view": ("RenderedView", "render"),

@@ -1,6 +1,6 @@
 """Cameras as the rasterizer sees them, and the scene description stored in model files.
 
-Files use nerfstudio/OpenGL camera-to-world matrices (conventions.md); the rasterizer takes
+Files use nerfstudio/OpenGL camera-to-world matrices (docs/data-format.md); the rasterizer takes
 gsplat's world-to-camera with OpenCV axes. The one conversion is
 :func:`brfgs.data.cameras.viewmat_from_c2w`.
 """
@@ -44,7 +44,7 @@ def camera_from_c2w(
     width: int,
     height: int,
 ) -> Camera:
-    """Camera from an OpenGL camera-to-world matrix (conventions.md) and intrinsics."""
+    """Camera from an OpenGL camera-to-world matrix (docs/data-format.md) and intrinsics."""
     c2w = np.asarray(c2w_gl, np.float64)
     vm = viewmat_from_c2w(c2w)
     return Camera(

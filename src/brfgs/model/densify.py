@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import torch
 
-from brfgs.model.densify_config import DensifyConfig
+from brfgs.model.densify_config import ADCConfig
 from brfgs.model.gaussians import GaussianModel, inverse_sigmoid
 from brfgs.model.optim import NamedAdam
 from brfgs.render.geometry import quat_to_rotmat
@@ -70,17 +70,19 @@ def refine(
     model: GaussianModel,
     opt: NamedAdam,
     state: DensifyState,
-    cfg: DensifyConfig,
+    cfg: ADCConfig,
     extent: float,
     gen: torch.Generator,
+    max_gaussians: int,
 ) -> dict:
-    """Clone, split and prune once; returns counts. Resets the statistics."""
+    """Clone, split and prune once, growing to at most ``max_gaussians``; returns counts. Resets the
+    statistics."""
     n = model.n
     avg = state.grad2d / state.count.clamp_min(1)
     high = avg > cfg.grow_grad2d
     scales = torch.exp(model.params["log_scales"])  # [N, 3] m, without the 3D filter (as Mip-Splatting)
     small = scales.max(-1).values <= cfg.grow_scale3d * extent
-    room = max(cfg.max_gaussians - n, 0)
+    room = max(max_gaussians - n, 0)
     clone = high & small
     split = high & ~small
     # respect the cap: keep the highest-gradient candidates
@@ -145,7 +147,7 @@ def refine(
 
 
 @torch.no_grad()
-def reset_opacity(model: GaussianModel, opt: NamedAdam, state: DensifyState, cfg: DensifyConfig) -> None:
+def reset_opacity(model: GaussianModel, opt: NamedAdam, state: DensifyState, cfg: ADCConfig) -> None:
     """Clamp opacities to 2 * prune_opacity (3DGS opacity reset); zero their moments."""
     lo = float(inverse_sigmoid(cfg.prune_opacity * 2.0))
     p = model.params["opacity_logits"]

@@ -76,24 +76,16 @@ def gaussian_features(
 
 def stage1_colors(model: GaussianModel, cam: Camera, sun_dir: Tensor | None = None) -> Tensor:  # [N, k]
     """Stage-1 reflectance of the stage-1 bands [N, k] for ``cam``: ``colors`` plus, when the model
-    has ``colors_rest`` [N, s, k], the SH rest terms Σ_j Y_j(ω_o) · rest_j (degree 1–3, 3DGS style),
-    and when it has ``colors_kernels`` [N, 2, k], the kernel terms c_vol K_Ross + c_geo K_Li of eq. 12
-    on the stage-1 bands (``sun_dir`` [3] unit, toward the sun)."""
+    has ``colors_kernels`` [N, 2, k], the kernel terms c_vol K_Ross + c_geo K_Li of eq. 12 on the
+    stage-1 bands (``sun_dir`` [3] unit, toward the sun)."""
     col = model["colors"]
-    if "colors_rest" not in model and "colors_kernels" not in model:
+    if "colors_kernels" not in model:
         return col
     omega_o = view_directions(model.means, cam.centre)  # [N, 3]
-    if "colors_rest" in model:
-        rest = model["colors_rest"]  # [N, s, k]
-        degree = {3: 1, 8: 2, 15: 3}[rest.shape[1]]
-        basis = sh_basis(degree, omega_o)[:, 1:]  # [N, s]
-        col = col + (basis[:, :, None] * rest).sum(1)
-    if "colors_kernels" in model:
-        kern = hybrid_kernels(None, sun_dir, omega_o, components=("vol", "geo"))  # {"vol", "geo"}: [N]
-        c_vol, c_geo = model["colors_kernels"].unbind(1)  # [N, k] each
-        # two products of [N, k] (a broadcast [N, 2, 1] x [N, 2, k] product and its sum cost ~3x as much)
-        col = col + (kern["vol"][:, None] * c_vol + kern["geo"][:, None] * c_geo)
-    return col
+    kern = hybrid_kernels(None, sun_dir, omega_o, components=("vol", "geo"))  # {"vol", "geo"}: [N]
+    c_vol, c_geo = model["colors_kernels"].unbind(1)  # [N, k] each
+    # two products of [N, k] (a broadcast [N, 2, 1] x [N, 2, k] product and its sum cost ~3x as much)
+    return col + (kern["vol"][:, None] * c_vol + kern["geo"][:, None] * c_geo)
 
 
 def camera_depth(model: GaussianModel, cam: Camera) -> Tensor:  # [N] m
@@ -115,14 +107,6 @@ def camera_depth_normals(model: GaussianModel, cam: Camera) -> Tensor:  # [N, 4]
     n_world = gaussian_normals(model.quats, model.scales, view_directions(means, cam.centre))  # [N, 3]
     n_cam = n_world @ vm[:3, :3].T  # [N, 3]
     return torch.cat([camera_depth(model, cam)[:, None], n_cam], -1)
-
-
-def camera_depth_squared(model: GaussianModel, cam: Camera) -> Tensor:  # [N, 1] m²
-    """Per-Gaussian squared camera-space depth t² [N, 1] (m²) for ``cam``; rasterized next to the
-    depth of :func:`camera_depth_normals` it gives the ray-wise depth variance
-    (:func:`brfgs.train.losses.depth_concentration_loss`)."""
-    depth = camera_depth(model, cam)  # [N]
-    return (depth * depth)[:, None]
 
 
 def _hybrid_kernels_at(model: GaussianModel, head_cfg: HeadConfig, normals: Tensor | None, sun_dir: Tensor,

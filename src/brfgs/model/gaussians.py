@@ -10,13 +10,11 @@ log_scales         [N, 3]       log of the Gaussian's standard deviations (metre
 quats              [N, 4]       rotation (w, x, y, z), normalised when used
 opacity_logits     [N]          o_k = sigmoid(logit)
 colors             [N, k]       stage-1 reflectance in the k geometry-reliable bands
-colors_rest        [N, s, k]    optional SH rest coefficients of the stage-1 colours (s = 3, 8, 15)
 colors_kernels     [N, 2, k]    optional K_Ross and K_Li coefficients of the stage-1 colours
 z_iso .. z_spec    [N, d]       latent kernel coefficients (eq. 11-12), appearance "brf"
 rho_raw            [N]          roughness (brfgs.brdf.head.roughness_from_raw)
 sh                 [N, 16, c]   SH coefficients (appearance "sh": c = d; "cir": c = 3)
 feat               [N, d]       per-Gaussian feature of the neural baseline
-far, far_ground_z  [N], [N]     optional far-field mark and ground height (m), never optimised
 =================  ===========  ============================================================
 
 Which appearance tensors exist depends on ``appearance`` ("brf", "sh", "neural", "cir").
@@ -34,11 +32,10 @@ from scipy.spatial import Delaunay, cKDTree
 from torch import Tensor
 
 from brfgs.init.mvs import height_field
-from brfgs.model.filter3d import filtered_scales, opacity_factor
 
 GEOMETRY_KEYS = ("means", "log_scales", "quats", "opacity_logits")
-# kept when the appearance head is replaced: stage-1 colours, far-field marks (brfgs.train.far_field)
-KEPT_KEYS = ("colors", "colors_rest", "colors_kernels", "far", "far_ground_z")
+# kept when the appearance head is replaced: the stage-1 colours
+KEPT_KEYS = ("colors", "colors_kernels")
 APPEARANCES = ("brf", "sh", "neural", "cir")
 
 
@@ -59,8 +56,6 @@ class GaussianModel:
         self.latent_dim = int(latent_dim)
         self.n_colors = int(n_colors)
         self.centred = False  # hybrid head in the centred training form (brfgs.model.features.centred_hybrid_latent)
-        # [N] m²: Mip-Splatting's 3D filter variance while geometry trains (brfgs.model.filter3d), else None
-        self.filter_var: torch.Tensor | None = None
 
     # -- views -----------------------------------------------------------------
     def __getitem__(self, key: str) -> torch.Tensor:
@@ -79,9 +74,8 @@ class GaussianModel:
 
     @property
     def scales(self) -> torch.Tensor:
-        """Standard deviations [N, 3] m as rendered (3D-filtered while :attr:`filter_var` is set)."""
-        s = torch.exp(self.params["log_scales"])
-        return s if self.filter_var is None else filtered_scales(s, self.filter_var)
+        """Standard deviations [N, 3] m."""
+        return torch.exp(self.params["log_scales"])
 
     @property
     def quats(self) -> torch.Tensor:
@@ -89,19 +83,16 @@ class GaussianModel:
 
     @property
     def opacities(self) -> torch.Tensor:
-        """Opacities [N] as rendered (compensated for the 3D filter while :attr:`filter_var` is set)."""
-        o = torch.sigmoid(self.params["opacity_logits"])
-        return o if self.filter_var is None else o * opacity_factor(torch.exp(self.params["log_scales"]), self.filter_var)
+        """Opacities [N]."""
+        return torch.sigmoid(self.params["opacity_logits"])
 
     def state(self) -> dict[str, torch.Tensor]:
         """Detached copies of every tensor (for checkpoints)."""
         return {k: v.detach().contiguous().clone() for k, v in self.params.items()}
 
     def replace(self, new: dict[str, torch.Tensor]) -> None:
-        """Replace tensors (after densification) with fresh leaves (the 3D filter is then stale:
-        the trainer recomputes it before the next render)."""
+        """Replace tensors (after densification) with fresh leaves."""
         self.params = {k: v.detach().contiguous().requires_grad_(True) for k, v in new.items()}
-        self.filter_var = None
 
     # -- appearance tensors ----------------------------------------------------
     def set_head(self, head_params: dict[str, torch.Tensor], appearance: str) -> None:

@@ -2,9 +2,7 @@
 
 3DGS densification changes the number of Gaussians, so the optimiser state must follow
 row edits; keeping the state as plain named tensors also makes checkpoints (safetensors,
-tensors only) and exact resume simple. Update rule = torch.optim.Adam, or torch.optim.AdamW's
-decoupled weight decay for the names in ``weight_decay``; the names in ``shrink`` are then
-soft-thresholded by shrink·lr (the proximal step of an L1 penalty, as in proximal Adam).
+tensors only) and exact resume simple. Update rule = torch.optim.Adam.
 """
 
 from __future__ import annotations
@@ -13,16 +11,10 @@ import torch
 
 
 class NamedAdam:
-    """Adam on a dict ``{name: tensor}``; per-name learning rates (``lrs``), decoupled weight
-    decays (``weight_decay``: p ← p·(1 − lr·wd) before the Adam step, as AdamW) and soft thresholds
-    (``shrink``: p ← sign(p)·max(|p| − lr·s, 0) after it: an element moves away from 0 only where
-    Adam's steps keep one direction by more than s of the learning rate)."""
+    """Adam on a dict ``{name: tensor}`` with per-name learning rates (``lrs``)."""
 
-    def __init__(self, lrs: dict[str, float], betas=(0.9, 0.999), eps: float = 1e-15,
-                 weight_decay: dict[str, float] | None = None, shrink: dict[str, float] | None = None):
+    def __init__(self, lrs: dict[str, float], betas=(0.9, 0.999), eps: float = 1e-15):
         self.lrs = dict(lrs)
-        self.weight_decay = dict(weight_decay or {})
-        self.shrink = dict(shrink or {})
         self.b1, self.b2 = betas
         self.eps = eps
         self.m: dict[str, torch.Tensor] = {}
@@ -44,18 +36,12 @@ class NamedAdam:
             t = self.t[name] + 1
             self.t[name] = t
             m, v = self.m[name], self.v[name]
-            wd = self.weight_decay.get(name, 0.0)
-            if wd > 0:
-                p.mul_(1 - lr * wd)
             m.mul_(self.b1).add_(g, alpha=1 - self.b1)
             v.mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
             bc1 = 1 - self.b1**t
             bc2 = 1 - self.b2**t
             denom = (v / bc2).sqrt_().add_(self.eps)
             p.addcdiv_(m, denom, value=-lr / bc1)
-            s = self.shrink.get(name, 0.0)
-            if s > 0:
-                p.copy_(p.sign() * (p.abs() - lr * s).clamp_min_(0))
 
     @staticmethod
     def zero_grad(params: dict[str, torch.Tensor]) -> None:

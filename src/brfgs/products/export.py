@@ -55,6 +55,7 @@ from plyfile import PlyData, PlyElement
 from torch import Tensor
 
 from brfgs.analysis.output import prepare_output_dir
+from brfgs.products.options import UP_AXES, VIEW_DEPENDENCE, VIEWER_TARGETS, ExportOptions  # noqa: F401  (re-exported)
 from brfgs.brdf.geometry import gaussian_normals
 from brfgs.brdf.head import roughness_from_raw
 from brfgs.brdf.sh import sh_basis
@@ -71,9 +72,6 @@ N_SH_REST = 15                       # degree-3 SH bases beyond DC, per colour c
 STANDARD_PROPERTIES = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
                        + [f"f_rest_{i}" for i in range(3 * N_SH_REST)] + ["opacity"]
                        + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
-VIEW_DEPENDENCE = ("fit", "none")
-UP_AXES = {"z": 0.0, "y": -90.0, "-y": 90.0}   # rotation about +x (deg) from ENU to the PLY frame
-VIEWER_TARGETS = {"supersplat": "-y", "playcanvas": "-y", "enu": "z"}
 
 
 @dataclass(frozen=True)
@@ -341,18 +339,6 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
 # the export command
 
 
-@dataclass
-class ExportOptions:
-    """Options of ``brfgs export`` (see :func:`export_model`)."""
-
-    view_dependence: str = "fit"   # "fit" | "none"
-    sh_directions: int = 48        # view directions sampled per Gaussian for the SH fit
-    up: str = "z"                  # "z" (ENU), "y" (y-up, glTF axes), "-y" (3DGS/SuperSplat/PlayCanvas)
-    scale: float = 1.0             # PLY units per metre
-    centre: bool | None = None     # centre on the scene (default: for the y frames)
-    overwrite: bool = False
-
-
 def _copy_model_file(src: Path, dst: Path) -> None:
     """Copy the model file atomically (nothing when ``dst`` is ``src``)."""
     if dst.resolve() != src.resolve():
@@ -363,11 +349,7 @@ def _copy_model_file(src: Path, dst: Path) -> None:
 def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = None) -> dict:
     """``brfgs export``: write OUT/gaussians.ply (:func:`write_ply`), a copy of the model file that
     loads on its own (OUT/model.safetensors) and OUT/export.json; returns what export.json holds."""
-    opts = ExportOptions() if opts is None else opts
-    if opts.up not in UP_AXES:
-        raise UserError(f"expected one of {', '.join(UP_AXES)}, got {opts.up!r}", field="--up")
-    if opts.view_dependence not in VIEW_DEPENDENCE:
-        raise UserError(f"expected 'fit' or 'none', got {opts.view_dependence!r}", field="--view-dependence")
+    opts = (ExportOptions() if opts is None else opts).validate()
     tm = TrainedModel.load(run)
     out = prepare_output_dir(Path(out), "export.json", opts.overwrite, tm.scene_root)
     src = Path(tm.source)

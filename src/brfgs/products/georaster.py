@@ -95,15 +95,31 @@ def write_geotiff(path: Path, cube: np.ndarray, grid: MapGrid, wavelengths_nm: n
     return path
 
 
+WGS84_DATUM = "World Geodetic System 1984"  # PROJ 9.x names it "World Geodetic System 1984 ensemble"
+
+
+def utm_zone_of(crs) -> tuple[int, str] | None:
+    """(zone, "North" | "South") of a WGS 84 UTM CRS, else None: from its EPSG code (326zz / 327zz) when
+    it has one, else from its UTM zone and a datum whose name starts with WGS 84's, whatever suffix a
+    PROJ version gives it."""
+    epsg = crs.to_epsg()
+    if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
+        return epsg % 100, "North" if epsg < 32700 else "South"
+    utm = crs.utm_zone
+    if utm and crs.datum is not None and crs.datum.name.startswith(WGS84_DATUM):
+        return int(utm[:-1]), "North" if utm[-1].upper() == "N" else "South"
+    return None
+
+
 def envi_map_info(grid: MapGrid) -> dict:
-    """ENVI header fields ``map info`` and ``coordinate system string`` (ESRI WKT) for the grid."""
+    """ENVI header fields ``map info`` (UTM with its zone and hemisphere for a WGS 84 UTM CRS, else
+    Arbitrary) and ``coordinate system string`` (ESRI WKT) for the grid."""
     crs = CRS.from_user_input(grid.crs)
     e0, n0 = grid.upper_left
     p = f"{grid.pixel_size:.10g}"
-    utm = crs.utm_zone
-    if utm and crs.datum is not None and crs.datum.name == "World Geodetic System 1984":
-        zone, hemi = int(utm[:-1]), "North" if utm[-1].upper() == "N" else "South"
-        info = ["UTM", "1", "1", f"{e0:.4f}", f"{n0:.4f}", p, p, str(zone), hemi, "WGS-84", "units=Meters"]
+    utm = utm_zone_of(crs)
+    if utm is not None:
+        info = ["UTM", "1", "1", f"{e0:.4f}", f"{n0:.4f}", p, p, str(utm[0]), utm[1], "WGS-84", "units=Meters"]
     else:
         info = ["Arbitrary", "1", "1", f"{e0:.4f}", f"{n0:.4f}", p, p, "0", "units=Meters"]
     return {"map info": info, "coordinate system string": "{" + crs.to_wkt(WktVersion.WKT1_ESRI) + "}"}

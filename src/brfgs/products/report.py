@@ -24,6 +24,7 @@ from brfgs.analysis.brf import auto_roi_size
 from brfgs.products.georaster import MapGrid, envi_map_info, map_camera, map_grid, write_geotiff
 from brfgs.products.mcd43_maps import MCD43_NAMES, render_mcd43
 from brfgs.analysis.options import check_size
+from brfgs.products.options import ProductsOptions
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
 from brfgs.analysis.views import check_zenith_deg, intrinsics_json
 from brfgs.data.cameras import Intrinsics
@@ -38,23 +39,6 @@ PRODUCT_NAMES = ("iso", "vol", "geo", "spec", "total", "nbar", "bsa", "wsa", "an
 _REFLECTANCES = ("iso", "total", "nbar", "bsa", "wsa", "f_iso", "nbar_mcd43", "bsa_mcd43", "wsa_mcd43")  # CIR
 _NOT_SIGNED = ("anix", "fit_rmse")
 _MAP_BAND_NM = 860.0
-
-
-@dataclass
-class ProductsOptions:
-    """Options of ``brfgs products``; None means "the model's own" (see :func:`products_report`)."""
-
-    size: tuple[int, ...] | None = None          # (W,) or (W, H) px of the nadir map
-    half_extent_m: float | None = None           # half width of the mapped area
-    sun_zenith_deg: float | None = None          # contributions and ANIX
-    nbar_sun_zenith_deg: float | None = None
-    albedo_sun_zenith_deg: float | None = None   # black-sky albedo
-    min_alpha: float = 0.5
-    check_decoder: bool = True
-    mcd43: bool = True                           # fit MODIS-style f_iso, f_vol, f_geo (brfgs.brdf.mcd43)
-    backend: str = "auto"
-    overwrite: bool = False
-    progress: bool = True
 
 
 def _descriptions(nbar_sun_zenith_deg: float, albedo_sun_zenith_deg: float) -> dict[str, str]:
@@ -173,7 +157,8 @@ def _camera(tm: TrainedModel, opts: ProductsOptions) -> tuple[np.ndarray, Intrin
 def products_report(run: str | Path, opts: ProductsOptions | None = None, out: str | Path | None = None) -> Report:
     """``brfgs products``: render the kernel products of the model of ``run`` from nadir and write
     them into ``out`` (default RUN/analysis/products)."""
-    opts = ProductsOptions() if opts is None else opts
+    opts = (ProductsOptions() if opts is None else opts).validate()
+    out = out if out is not None else opts.out
     tm = TrainedModel.load(run)
     P.require_hybrid(tm)
     sz, nz, az = _suns(tm, opts)

@@ -11,7 +11,17 @@ Modules: spectra (material/illumination/noise spectra), materials (material tabl
 per pass), config (SimConfig), acquisition (acquisition, noise, files).
 """
 
-from brfgs.sim.acquisition import (SimConfig, observe, render_scene_views, render_seed, render_views, simulate,
-                                view_name)
+import importlib
 
-__all__ = ["SimConfig", "simulate", "render_views", "render_scene_views", "observe", "render_seed", "view_name"]
+# Names exported here load on first use (PEP 562), so that the command line can read the options
+# (brfgs.sim.options) without Mitsuba.
+_EXPORTS = {"brfgs.sim.acquisition": ("SimConfig", "observe", "render_scene_views", "render_seed", "render_views",
+                                      "simulate", "view_name")}
+_WHERE = {name: mod for mod, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'brfgs.sim' has no attribute {name!r}")
+    return getattr(importlib.import_module(_WHERE[name]), name)

@@ -1,6 +1,6 @@
 """``brfgs simulate``: AIR-BRF-like multi-angle hyperspectral acquisitions of a Mitsuba scene.
 
-Writes a scene folder in the layout of conventions.md (transforms.json, images/, calibration/)
+Writes a scene folder in the layout of docs/data-format.md (transforms.json, images/, calibration/)
 plus truth/ (clean cubes, depth, material ids, material table, σ_b, scene parameters) and
 two colour-infrared previews. See :class:`SimConfig` for the options and
 :func:`simulate` / :func:`render_views` for the library entry points.
@@ -364,7 +364,7 @@ def _reference_sun(cfg: SimConfig) -> dict:
 
 
 def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> dict:
-    """Content of transforms.json (conventions.md)."""
+    """Content of transforms.json (docs/data-format.md)."""
     intr = cfg.intrinsics()
     return {
         "camera_model": "PINHOLE" if cfg.distortion is None else "OPENCV",

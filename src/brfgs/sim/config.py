@@ -14,16 +14,16 @@ from brfgs.data.sun import solar_position
 from brfgs.errors import UserError
 from brfgs.sim import spectra as sp
 from brfgs.sim.geometry import SCENES
+from brfgs.sim.options import N_DARK_DEFAULT, SimOptions
 
 __all__ = ["SimConfig", "VALID_VIEWS", "SAMPLERS", "N_DARK_DEFAULT"]
 
 VALID_VIEWS = (1, 13, 25, 37, 49)
 SAMPLERS = ("ldsampler", "independent")
-N_DARK_DEFAULT = 20
 
 
 @dataclass
-class SimConfig:
+class SimConfig(SimOptions):
     """Options of a simulated acquisition (the CLI exposes each one).
 
     scene: "testsite" | "forest" | "flat"; size: image width = height (px); bands: number of
@@ -39,33 +39,6 @@ class SimConfig:
     rings_deg, n_azimuths: another view layout, nadir + ``n_azimuths`` azimuths (from 0°, evenly
     spaced) on each ring of ``rings_deg`` (view zeniths in degrees), instead of the paper's ``views``.
     """
-
-    scene: str = "testsite"
-    size: int = 128
-    bands: int = 164
-    views: int = 49
-    spp: int = 64
-    sun_zenith_deg: float = 38.0
-    sun_azimuth_deg: float = 150.0
-    seed: int = 0
-    distance_m: float = 100.0
-    fov_deg: float = 35.0
-    wavelength_min_nm: float = 350.0
-    wavelength_max_nm: float = 1000.0
-    fwhm_nm: float = 4.0
-    noise_scale: float = 1.0
-    shot_coeff: float = 0.01
-    n_dark: int = N_DARK_DEFAULT
-    max_depth: int = 10
-    texture_px: int = 0
-    sampler: str = "ldsampler"
-    origin: tuple[float, ...] | None = None   # (latitude deg, longitude deg[, altitude m]) of the ENU origin
-    start_time: str | None = None             # UTC time of the first view: the sun moves over the flight (origin)
-    duration_min: float = 0.0                 # minutes from the first to the last view (views evenly spaced)
-    irradiance_drift: float = 0.0             # per-view downwelling irradiance factor in [1 - d, 1 + d]
-    distortion: tuple[float, ...] | None = None   # OPENCV k1, k2, p1, p2 of the camera (brfgs.sim.distort)
-    rings_deg: tuple[float, ...] | None = None    # view zenith rings of another layout (replaces ``views``)
-    n_azimuths: int = 12                          # views per ring of that layout, evenly spaced from 0°
 
     def texture_resolution(self) -> int:
         """Ground-texture resolution (texels over the 120 m core): ``texture_px`` or, when 0, the power

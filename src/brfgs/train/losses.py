@@ -18,28 +18,6 @@ def fill_invalid(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) 
     return torch.where(valid[..., None], target, pred.detach())
 
 
-def area_pool(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor,
-              factor: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Render, observation and mask area-averaged over ``factor`` x ``factor`` pixel blocks.
-
-    pred, target [H, W, C], valid [H, W] -> [H // f, W // f, C] twice and [H // f, W // f]; the
-    last H % f rows and W % f columns are dropped. A block is valid when all its pixels are; its
-    target is the mean of its pixels (invalid ones, which may be NaN, never enter a valid block).
-    """
-    f = int(factor)
-    if f <= 1:
-        return pred, target, valid
-    h, w = pred.shape[0] // f * f, pred.shape[1] // f * f
-
-    def pool(x: torch.Tensor) -> torch.Tensor:  # [h, w, C] -> [h/f, w/f, C]
-        return F.avg_pool2d(x[:h, :w].permute(2, 0, 1)[None], f)[0].permute(1, 2, 0)
-
-    v = valid[:h, :w]
-    t = torch.where(v[..., None], target[:h, :w], torch.zeros((), dtype=target.dtype))
-    v_pooled = pool(v[..., None].to(pred.dtype))[..., 0] > 1 - 1e-6  # [h/f, w/f]
-    return pool(pred), pool(t), v_pooled
-
-
 def masked_l1(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, filled: bool = False) -> torch.Tensor:
     """Mean |pred - target| over valid pixels and channels (eq. 26 when C = B); ``filled``: ``target``
     is already :func:`fill_invalid`'s."""
@@ -96,16 +74,6 @@ def ssim_torch(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0, valid:
     return torch.where(ok, m, torch.zeros_like(m)).sum() / ok.sum()
 
 
-def coverage_loss(
-    alpha: torch.Tensor,  # [H, W] accumulated opacity
-    valid: torch.Tensor,  # [H, W] bool
-) -> torch.Tensor:  # scalar
-    """Mean of 1 - alpha over the valid pixels: 0 when the Gaussians cover every pixel."""
-    if not bool(valid.any()):
-        return alpha.sum() * 0.0
-    return (1.0 - alpha)[valid].mean()
-
-
 def stage1_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor, alpha: float,
                 per_band: bool = False) -> torch.Tensor:
     """(1 - alpha) L1 + alpha D-SSIM (eq. 24) of [H, W, k] images; D-SSIM on the grayscale (band
@@ -141,95 +109,29 @@ def masked_psnr(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) -
     return float(-10 * torch.log10(mse))
 
 
-def image_edge_weight(target: torch.Tensor, valid: torch.Tensor, edge_rel: float) -> torch.Tensor:  # [H, W]
-    """PGSR-style edge weight of every pixel: exp(−max_c max_q |Ĩ_c(q) − Ĩ_c(p)| / (edge_rel · Ī_c)),
-    q the four neighbours of p (none beyond the border), Ĩ the 3 × 3 box mean of the image (edge
-    pixels replicated; it divides a band's noise by 3, which would otherwise read as contrast
-    everywhere), Ī_c the channel's mean |I| over the valid pixels.
-
-    Args:
-        target: [H, W, C] the observed image; valid: [H, W] its valid pixels (invalid ones are 0
-            before the box mean; a pair with an invalid pixel has no contrast).
-        edge_rel: relative contrast at which the weight drops to 1/e.
-    1 on uniform surfaces, → 0 across material and depth edges (a crown against the ground),
-    where the central-difference normal of the rendered depth straddles two surfaces.
-    """
-    t = torch.where(valid[..., None], torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0), 0.0)  # [H, W, C]
-    scale = edge_rel * (t[valid].abs().mean(0) if bool(valid.any()) else t.new_ones(t.shape[-1])).clamp_min(1e-6)
-    x = F.pad(t.permute(2, 0, 1)[None], (1, 1, 1, 1), mode="replicate")  # [1, C, H+2, W+2]
-    t = F.avg_pool2d(x, 3, 1)[0].permute(1, 2, 0)  # [H, W, C]
-    grad = torch.zeros_like(t)  # [H, W, C] largest contrast to a neighbour
-    for dim in (0, 1):  # each neighbour pair along y, then x, counts for both of its pixels
-        n = t.shape[dim] - 1
-        hi, lo = t.narrow(dim, 1, n), t.narrow(dim, 0, n)
-        d = (hi - lo).abs() * (valid.narrow(dim, 1, n) & valid.narrow(dim, 0, n))[..., None]
-        for k in (0, 1):
-            view = grad.narrow(dim, k, n)
-            view.copy_(torch.maximum(view, d))
-    return torch.exp(-(grad / scale).max(-1).values)
-
-
-def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5,
-                      weight: torch.Tensor | None = None, depth_grad: bool = True,
-                      per_gaussian: bool = False) -> torch.Tensor:
-    """Depth-normal consistency (as in 2DGS / PGSR): w-weighted mean over pixels of alpha · (1 − n_r · n_d),
-    or with ``per_gaussian`` of 2DGS's Σ_k w_k (1 − n_k · n_d) = alpha − N · n_d (N the premultiplied
-    blended normal, not renormalised: each Gaussian's misalignment counts with its blending weight;
-    training's default since Session 27, ``TrainConfig.normal_prior_per_gaussian``).
+def depth_normal_loss(geo: torch.Tensor, alpha: torch.Tensor, K: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
+    """Depth-normal consistency in 2DGS's per-Gaussian form: mean over pixels of
+    Σ_k w_k (1 − n_k · n_d) = alpha − N · n_d, N the premultiplied blended normal (not renormalised,
+    so each Gaussian's misalignment counts with its blending weight and a minority of tilted discs in
+    a stack is not hidden) and n_d the normal of the rendered depth map (:func:`normals_from_depth`),
+    detached: the prior turns the Gaussians toward the depth's normal but never moves the depth.
 
     Args:
         geo: [H, W, 4] rasterized (premultiplied) camera depth and normal of
             :func:`brfgs.model.features.camera_depth_normals`.
-        alpha: [H, W] accumulated opacity.
+        alpha: [H, W] accumulated opacity; pixels below ``min_alpha`` do not count.
         K: [3, 3] intrinsics of the rendered window.
-        weight: [H, W] optional per-pixel weight w ≥ 0 (e.g. :func:`image_edge_weight`, as PGSR
-            weights its single-view loss by the image gradient); 1 when None. The mean is
-            Σ w·e / Σ w, so the weight moves the prior off edges without weakening it.
-        depth_grad: False detaches n_d: the prior then turns the Gaussians toward the rendered
-            depth's normal but never moves the depth (nor alpha) itself.
-    n_r is the normalised rendered normal, n_d the normal of the rendered depth map
-    (:func:`normals_from_depth`); pixels with alpha < ``min_alpha`` do not count. With
-    ``depth_grad`` gradients reach both, so the Gaussians' orientations and their depths agree
-    (2DGS); training detaches the depth by default (``TrainConfig.normal_prior_moves_depth``).
-    Either way flat, textureless surfaces (water, roofs) get normals from their neighbours' depths.
+    Flat, textureless surfaces (water, roofs) get normals from their neighbours' depths.
     """
     a = alpha.clamp_min(1e-6)
     depth = geo[..., 0] / a
-    nr = geo[..., 1:4]
-    nr = nr / nr.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    nd, valid = normals_from_depth(depth if depth_grad else depth.detach(), K)
+    nd, valid = normals_from_depth(depth.detach(), K)
     valid = valid & (alpha > min_alpha)
     if not bool(valid.any()):
         return geo.sum() * 0.0
-    if per_gaussian:
-        err = alpha - (geo[..., 1:4] * nd).sum(-1)  # [H, W] sum_k w_k (1 - n_k . n_d)
-    else:
-        err = (1.0 - (nr * nd).sum(-1)) * alpha  # [H, W]
-    w = valid.to(err.dtype) if weight is None else weight.detach().to(err.dtype) * valid
+    err = alpha - (geo[..., 1:4] * nd).sum(-1)  # [H, W] sum_k w_k (1 - n_k . n_d)
+    w = valid.to(err.dtype)
     return (err * w).sum() / w.sum().clamp_min(1e-12)
-
-
-def depth_concentration_loss(geo: torch.Tensor, alpha: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
-    """Ray-wise spread of the blended depths (a surface prior, like 2DGS's depth distortion):
-    mean over pixels of alpha · sqrt(Var_w[t]) / E_w[t].
-
-    Args:
-        geo: [H, W, 2] rasterized (premultiplied) camera depth t and t² (m, m²)
-            (:func:`brfgs.model.features.camera_depth_normals` channel 0,
-            :func:`brfgs.model.features.camera_depth_squared`); E_w[·] = channel / alpha.
-        alpha: [H, W] accumulated opacity; pixels below ``min_alpha`` do not count.
-    Zero when every ray's weight sits at one depth; a semi-transparent cloud 1 m thick seen
-    from 100 m gives about 0.005 per pixel. Without it a textureless surface (water) can be
-    replaced by a thick cloud of Gaussians that fits the views as well.
-    """
-    a = alpha.clamp_min(1e-6)
-    m1 = geo[..., 0] / a  # [H, W] E[t]
-    var = (geo[..., 1] / a - m1 * m1).clamp_min(0.0)  # [H, W]
-    valid = alpha > min_alpha
-    if not bool(valid.any()):
-        return geo.sum() * 0.0
-    rel = torch.sqrt(var + 1e-10) / m1.detach().clamp_min(1e-6)
-    return (rel * alpha)[valid].mean()
 
 
 def depth_smoothness_loss(depth_premult: torch.Tensor, alpha: torch.Tensor, target: torch.Tensor,

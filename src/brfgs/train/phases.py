@@ -5,10 +5,6 @@
 - ``STAGE2`` (eqs. 25–27): geometry frozen; the appearance head (hybrid kernels, SH, neural)
   in the autoencoder's latent space is rendered, decoded and fitted on all bands with
   (1 − β) L_refl + β L_cos.
-- ``REFINE`` (not in the paper; option ``refine_steps``): after stage 2, geometry and the
-  appearance head refined together on all bands with the stage-2 loss and the surface priors,
-  without densification, so that the geometry fitted with view-independent stage-1 colours can
-  settle under the BRDF head's view dependence.
 - ``JOINT`` (Table 4 ablation): everything at once, stage-2 loss plus α D-SSIM on the stage-1
   bands, densification as in stage 1.
 - ``CIR`` (3DGS baseline): SH degree 3 on CIR composites, L1 + D-SSIM, one phase.
@@ -25,7 +21,6 @@ class Phase(str, Enum):
 
     STAGE1 = "stage1"
     STAGE2 = "stage2"
-    REFINE = "refine"
     JOINT = "joint"
     CIR = "cir"
     DONE = "done"
@@ -33,17 +28,17 @@ class Phase(str, Enum):
     @property
     def trains_geometry(self) -> bool:
         """μ, Σ and opacity are optimised in this phase (densified too where :attr:`grows`)."""
-        return self in (Phase.STAGE1, Phase.REFINE, Phase.JOINT, Phase.CIR)
+        return self in (Phase.STAGE1, Phase.JOINT, Phase.CIR)
 
     @property
     def grows(self) -> bool:
-        """The geometry is densified (clone, split, prune) and grown from coarse to fine in this phase."""
+        """The geometry is densified in this phase (every phase that trains it)."""
         return self in (Phase.STAGE1, Phase.JOINT, Phase.CIR)
 
     @property
     def fits_head(self) -> bool:
         """The spectral appearance head is optimised in this phase."""
-        return self in (Phase.STAGE2, Phase.REFINE, Phase.JOINT)
+        return self in (Phase.STAGE2, Phase.JOINT)
 
     @property
     def renders_colors(self) -> bool:
@@ -51,21 +46,18 @@ class Phase(str, Enum):
         return self in (Phase.STAGE1, Phase.CIR)
 
 
-def plan(variant: str, joint: bool, stage1_steps: int, stage2_steps: int,
-         refine_steps: int = 0) -> list[tuple[Phase, int]]:
-    """The phases of a run and their step counts (a decoupled run refines after stage 2 when
-    ``refine_steps`` > 0)."""
+def plan(variant: str, joint: bool, stage1_steps: int, stage2_steps: int) -> list[tuple[Phase, int]]:
+    """The phases of a run and their step counts."""
     if variant == "cir":
         return [(Phase.CIR, stage1_steps + stage2_steps)]
     if joint:
         return [(Phase.JOINT, stage1_steps + stage2_steps)]
-    phases = [(Phase.STAGE1, stage1_steps), (Phase.STAGE2, stage2_steps)]
-    return phases + [(Phase.REFINE, refine_steps)] if refine_steps > 0 else phases
+    return [(Phase.STAGE1, stage1_steps), (Phase.STAGE2, stage2_steps)]
 
 
 def run_plan(cfg) -> list[tuple[Phase, int]]:
     """:func:`plan` of a run's options ``cfg`` (a :class:`brfgs.train.config.TrainConfig`)."""
-    return plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps, cfg.refine_steps)
+    return plan(cfg.variant, cfg.joint, cfg.stage1_steps, cfg.stage2_steps)
 
 
 def next_phase(phases: list[tuple[Phase, int]], phase: Phase) -> Phase:

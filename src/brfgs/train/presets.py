@@ -66,10 +66,11 @@ ADDITIONS: dict[str, Addition] = {
 
 
 def with_options(cfg: "TrainConfig", changes: dict) -> "TrainConfig":
-    """``cfg`` with ``changes`` (a ``densify`` dict changes only the fields it names)."""
+    """``cfg`` with ``changes`` (a ``densify`` or ``mcmc`` dict changes only the fields it names)."""
     changes = dict(changes)
-    if isinstance(changes.get("densify"), dict):
-        changes["densify"] = replace(cfg.densify, **changes["densify"])
+    for key in ("densify", "mcmc"):
+        if isinstance(changes.get(key), dict):
+            changes[key] = replace(getattr(cfg, key), **changes[key])
     return replace(cfg, **changes)
 
 
@@ -79,14 +80,14 @@ PAPER_METHOD: dict = {k: v for a in ADDITIONS.values() for k, v in a.paper.items
 # The paper's GPU-scale schedule (3DGS's 30k steps per stage, whole images, no Gaussian cap).
 PAPER_SCHEDULE: dict = dict(ae_steps=5000, ae_batch=4096, ae_max_pixels=1_000_000, stage1_steps=30_000,
                             stage2_steps=30_000,
-                            densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000,
-                                         max_gaussians=3_000_000),
-                            checkpoint_every=2000, patch_px=0, stage2_rays=0, patch_rays=0, max_gaussians_per_px=0.0,
+                            densify=dict(refine_start=500, refine_stop=15_000, refine_every=100, reset_every=3000),
+                            max_gaussians=3_000_000, checkpoint_every=2000, patch_px=0, stage2_rays=0,
+                            max_gaussians_per_px=0.0,
                             schedule_ref_views=0)
 
 # ``fine``: each pixel the mean of 2 x 2 sub-pixel samples (from half of the geometry phase on) and
-# AbsGS's densification gradient at 0.0004 (docs/results.md, Sessions 20-21: chosen on the validation
-# views of six scenes; not the default because stage 1 rasterizes four times the pixels).
+# AbsGS's densification gradient at 0.0004 (chosen on the validation views of six scenes; not the
+# default because stage 1 rasterizes four times the pixels and each view renders supersampled).
 FINE: dict = dict(supersample=2, supersample_start=0.5, densify=dict(absgrad=True, grow_grad2d=0.0004))
 
 # Each preset: the options that differ from the dataclass defaults (``fast``: none).
@@ -97,7 +98,7 @@ PRESETS: dict[str, dict] = {
     "paper-fast": dict(PAPER_METHOD),
     "tiny": dict(ae_steps=60, ae_batch=256, ae_max_pixels=5000, stage1_steps=30, stage2_steps=30, latent_dim=4,
                  init_fill_points=500,
-                 densify=dict(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000, max_gaussians=5000),
+                 densify=dict(refine_start=10, refine_stop=25, refine_every=10, reset_every=1000), max_gaussians=5000,
                  checkpoint_every=10, log_every=1, backend="torch", schedule_ref_views=0),
 }
 

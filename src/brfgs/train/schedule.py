@@ -34,15 +34,11 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
     """
     c = cfg
     lrs: dict[str, float] = {}
-    if phase.trains_geometry:  # the refinement: the rates stage 1 ended with, times refine_lr_scale
-        if phase == Phase.REFINE:
-            s, mean_lr = c.refine_lr_scale, c.lr_means_final * extent_m
-        else:
-            s, mean_lr = 1.0, means_lr(c, step, steps, extent_m)
-        lrs.update({"means": s * mean_lr, "log_scales": s * c.lr_scales, "quats": s * c.lr_quats,
-                    "opacity_logits": s * c.lr_opacity})
-    if phase == Phase.STAGE1:  # the view-dependent terms (SH rest, kernels) at a twentieth, as 3DGS's SH rest
-        lrs.update({"colors": c.lr_colors, "colors_rest": c.lr_colors / 20.0, "colors_kernels": c.lr_colors / 20.0,
+    if phase.trains_geometry:
+        lrs.update({"means": means_lr(c, step, steps, extent_m), "log_scales": c.lr_scales, "quats": c.lr_quats,
+                    "opacity_logits": c.lr_opacity})
+    if phase == Phase.STAGE1:  # the kernel terms at a twentieth, as 3DGS's SH rest terms
+        lrs.update({"colors": c.lr_colors, "colors_kernels": c.lr_colors / 20.0,
                     "bg_colors": c.lr_background})
     if phase.fits_head:  # the head's rates, all scaled by the decay of the phase
         head = {k: c.lr_latent for k in LATENT_KEYS}
@@ -59,13 +55,3 @@ def learning_rates(cfg: TrainConfig, phase: Phase, step: int, steps: int, extent
         lrs.pop("bg_colors", None)
         lrs.pop("bg_latent", None)
     return lrs
-
-
-def spec_regularisers(cfg: TrainConfig, phase: Phase) -> tuple[dict[str, float], dict[str, float]]:
-    """({tensor name: decoupled weight decay}, {tensor name: soft threshold per step, in units of its
-    learning rate}) of the phase (NamedAdam's ``weight_decay`` and ``shrink``): the specular latent's
-    ``wd_spec`` and ``spec_shrink``, so that a z_spec that no glint holds up does not drift."""
-    if not phase.fits_head:
-        return {}, {}
-    return ({"z_spec": cfg.wd_spec} if cfg.wd_spec > 0 else {}), ({"z_spec": cfg.spec_shrink} if cfg.spec_shrink > 0
-                                                                   else {})

@@ -11,11 +11,12 @@ import torch
 from brfgs.bands import select_bands
 from brfgs.brdf.geometry import gaussian_normals
 from brfgs.brdf.head import init_head_params
-from brfgs.brdf.sh import num_sh_bases
 from brfgs.data.cir import cir_band_indices, cir_scale
 from brfgs.data import atomic
+from brfgs.errors import UserError
 from brfgs.init import initialize
 from brfgs.init.mvs import MVSConfig, dense_cloud, write_dense_ply
+from brfgs.init.truth import surface_samples
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
@@ -26,7 +27,6 @@ from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
-from brfgs.train.far_field import mark_far_field
 from brfgs.train.targets import backprojected_targets, ground_footprints
 
 
@@ -43,7 +43,8 @@ def select_and_initialise(state: TrainState, scene, cfg: TrainConfig, folder: Ru
     t = time.perf_counter()
     init = initialize(scene, bands, poses=cfg.poses, out_dir=folder.out / "init", selection=sel, progress=progress)
     state.timings["init"] = time.perf_counter() - t
-    log(f"init: {init.points.shape[0]} points ({init.report.get('poses', cfg.poses)})")
+    log(f"init: {init.points.shape[0]} points ({init.report.get('poses', cfg.poses)})"
+        + (f"; {init.report['fallback']}" if init.report.get("fallback") else ""))
     cir_idx = cir_band_indices(scene.wavelengths_nm)
     # stage 1 fits the selected bands and, by default, the CIR bands (green, red, NIR): the selected
     # bands make SfM reliable, the CIR bands carry the visible texture that the composites show
@@ -72,15 +73,41 @@ def dense_fill(state: TrainState, scene, cfg: TrainConfig, init, images: TrainIm
     return cloud.points
 
 
+TRUTH_VOXEL_M = 0.05  # --init-fill truth: one true-surface sample per voxel of this size before the subset
+
+
+def truth_fill(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, log) -> np.ndarray:
+    """About ``init_fill_points`` points [M, 3] on a simulated scene's true surface (its truth depth maps
+    of the training views, one point per 5 cm voxel, then a subset seeded by ``seed``); the truth depth
+    maps become the dense-depth targets (OUT/init/dense_depths.npz). UserError without truth depth."""
+    tr = list(scene.train_indices)
+    pts = surface_samples(scene, tr)  # [S, 3] m
+    if pts is None:
+        raise UserError("--init-fill truth needs a simulated scene's truth depth maps",
+                        file=(scene.truth_dir or scene.root / "truth") / "depth", field="init_fill")
+    _, first = np.unique(np.floor(pts / TRUTH_VOXEL_M).astype(np.int64), axis=0, return_index=True)
+    pts = pts[np.sort(first)]
+    if len(pts) > cfg.init_fill_points:
+        keep = np.random.default_rng(cfg.seed).choice(len(pts), cfg.init_fill_points, replace=False)
+        pts = pts[np.sort(keep)]
+    maps = {scene.frames[i].name: scene.truth_dir / "depth" / f"{scene.frames[i].name}.npy" for i in tr}
+    maps = {name: path for name, path in maps.items() if path.is_file()}  # the maps surface_samples read
+    save_dense_depths(folder.out / "init" / DENSE_DEPTH_FILE, list(maps), [np.load(path) for path in maps.values()])
+    log(f"init: {len(pts)} points on the true surface, truth depth maps of {len(maps)} training views")
+    return pts
+
+
 def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: TrainImages, folder: RunFolder,
                       log) -> None:
-    """Gaussians at the sparse points (plus a surface fill), stage-1 colours from the images,
-    optional SH rest terms, and the stage-1 background."""
+    """Gaussians at the sparse points (plus a surface fill), stage-1 colours from the images, the
+    stage-1 kernel terms, and the stage-1 background."""
     bands, s1 = state.meta["bands"], state.meta["stage1_bands"]
     pts, cols = np.asarray(init.points, np.float64), np.asarray(init.colors, np.float64)
     if cfg.init_fill_points > 0:
         if cfg.init_fill == "mvs":
             extra = dense_fill(state, scene, cfg, init, images, folder, log)
+        elif cfg.init_fill == "truth":
+            extra = truth_fill(state, scene, cfg, folder, log)
         else:
             cover, seen = ground_footprints(scene, pts, init.c2w)
             extra = surface_fill(pts, cfg.init_fill_points, cover_xy=cover, keep=seen)
@@ -92,9 +119,6 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
         cols = np.full((cols.shape[0], len(s1)), np.nan)
     gm = init_from_points(pts, np.nan_to_num(cols), cfg.latent_dim, cfg.init_opacity)
     state.gaussians = gm
-    if cfg.far_field_plane:
-        n_far = mark_far_field(gm, [state.cameras[i] for i in scene.train_indices], np.asarray(init.points, np.float64))
-        log(f"init: {n_far} of {gm.n} Gaussians in the far field, kept on the ground surface")
     if cfg.init_fill_points > 0 or s1 != bands:  # colours of every Gaussian from the images it projects into
         with torch.no_grad():
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
@@ -102,8 +126,6 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
                                                             supersample=cfg.supersample))
     has_stage1 = run_plan(cfg)[0][0] == Phase.STAGE1  # CIR and joint runs have no stage-1 colours to extend
     k = gm["colors"].shape[1]
-    if cfg.stage1_sh_degree > 0 and has_stage1:  # view-dependent stage-1 colours (3DGS-style SH rest terms)
-        gm.params["colors_rest"] = torch.zeros(gm.n, num_sh_bases(cfg.stage1_sh_degree) - 1, k, requires_grad=True)
     if cfg.stage1_kernels and has_stage1:  # stage-1 colours with eq. 12's kernels
         gm.params["colors_kernels"] = torch.zeros(gm.n, 2, k, requires_grad=True)
     state.densify = DensifyState(gm.n)

@@ -23,7 +23,6 @@ from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.train.config import TrainConfig
 from brfgs.train.phases import Phase
 from brfgs.train.dense_depth import DenseDepth
-from brfgs.train.sparse_depth import SparseDepth
 
 # meta keys that describe the run's set-up (carried from checkpoint to checkpoint)
 SETUP_KEYS = ("scene", "bands", "stage1_bands", "cir_indices", "cir_scale", "extent_m", "autoencoder_report",
@@ -57,9 +56,7 @@ class TrainState:
         self.meta: dict = {}                        # set-up facts (SETUP_KEYS)
         self.timings: dict[str, float] = {}
         self._cameras: list[Camera] | None = None
-        self.sparse_depth: SparseDepth | None = None  # the SfM tracks (option lambda_sparse_depth)
-        self.dense_depth: DenseDepth | None = None  # the stereo depth maps (option lambda_dense_depth)
-        self.multiview = None  # brfgs.train.multiview.MultiView (option lambda_multiview)
+        self.dense_depth: DenseDepth | None = None  # the dense depth maps (option lambda_dense_depth)
 
     # -- derived -----------------------------------------------------------------------
     @property
@@ -117,8 +114,6 @@ class TrainState:
         tensors = tm.tensors()
         tensors.update(self.opt.state_tensors("optim."))
         tensors.update(self.densify.tensors("densify."))
-        if self.gaussians.filter_var is not None:  # the 3D filter in use (option filter_3d)
-            tensors["densify.filter_var"] = self.gaussians.filter_var.clone()
         tensors["rng.torch"] = self.gen.get_state()
         meta = tm.metadata()
         meta.update({"optim": self.opt.state_meta(), "densify_resets": self.densify.n_resets, "perm": list(self.perm)})
@@ -149,8 +144,6 @@ class TrainState:
         self.opt.load(tensors, meta["optim"], "optim.")
         self.densify = DensifyState(self.gaussians.n)
         self.densify.load(tensors, meta.get("densify_resets", 0), "densify.")
-        fv = tensors.get("densify.filter_var")
-        self.gaussians.filter_var = None if fv is None else fv.clone()
         self.gen.set_state(tensors["rng.torch"])
         self.perm = list(meta.get("perm", []))
         self.phase = Phase(meta["phase"])

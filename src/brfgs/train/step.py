@@ -12,20 +12,17 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from brfgs.model.camera import Camera
-from brfgs.model.mcmc import mcmc_regulariser
-from brfgs.model.features import camera_depth_normals, camera_depth_squared, gaussian_features, stage1_colors
+from brfgs.model.features import camera_depth_normals, gaussian_features, stage1_colors
 from brfgs.model.rendering import (
     composite_background, decode_image, frustum_subset, rasterize_features, rasterize_splats,
 )
 from brfgs.render import RenderOutput
 from brfgs.train.config import TrainConfig
 from brfgs.train.images import TrainImages
-from brfgs.train.losses import (area_pool, coverage_loss, depth_concentration_loss, depth_normal_loss, depth_smoothness_loss, flatten_loss,
-                                image_edge_weight, masked_psnr, normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
+from brfgs.train.losses import (depth_normal_loss, depth_smoothness_loss, flatten_loss, masked_psnr,
+                                normal_smoothness_loss, spectral_tv_loss, stage1_loss, stage2_loss)
 from brfgs.train.phases import Phase
 from brfgs.train.dense_depth import dense_depth_loss
-from brfgs.train.multiview import multiview_loss
-from brfgs.train.sparse_depth import sparse_depth_loss
 from brfgs.train.state import TrainState, head_config
 
 
@@ -52,19 +49,12 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
               phase: Phase) -> tuple[int, tuple[int, int, int, int] | None]:
     """Next training view (epoch-wise permutation) and an optional patch window.
 
-    Patches of ``patch_px`` for large images; in the joint phase, and in stage 2 with decode
-    order "gaussian", square patches of about ``patch_rays`` pixels (every pixel is scored there:
-    for the D-SSIM term, or because the spectra are blended, not decoded per pixel). The
-    refinement scores whole views, as stage 1 does: a patch smaller than the view would train the
-    view's border less often than its centre.
+    Patches of ``patch_px`` for images larger than that (whole views otherwise, in every phase).
     """
     if not state.perm:
         state.perm = torch.randperm(len(train_indices), generator=state.gen).tolist()
     i = train_indices[state.perm.pop()]
     P = cfg.patch_px
-    if cfg.patch_rays > 0 and (phase == Phase.JOINT or (phase == Phase.STAGE2 and cfg.decode == "gaussian")):
-        side = max(int(math.sqrt(cfg.patch_rays)), 16)
-        P = min(P, side) if P > 0 else side
     if P > 0 and width * height > P * P:
         pw, ph = min(P, width), min(P, height)
         x0 = int(torch.randint(0, width - pw + 1, (1,), generator=state.gen))
@@ -101,51 +91,28 @@ def _features(state: TrainState, cfg: TrainConfig, phase: Phase, cam: Camera, i:
     return gaussian_features(state.gaussians, cam, state.sun_of(i), head_config(cfg), neural, ref_sun=state.sun)
 
 
-def _geometry_channels(state: TrainState, cfg: TrainConfig, cam: Camera) -> list[Tensor]:
-    """Depth + normal (+ depth²) channels [N, 4 or 5] for the surface priors."""
-    chans = [camera_depth_normals(state.gaussians, cam)]
-    if cfg.lambda_depth_conc > 0:
-        chans.append(camera_depth_squared(state.gaussians, cam))
-    return chans
-
-
 def geometry_regulariser(state: TrainState, cfg: TrainConfig, out: RenderOutput, n_feat: int, batch: Batch,
-                         use_priors: bool) -> Tensor | None:
-    """Flatness loss plus, when ``use_priors``, the depth-normal, depth-concentration, depth
-    smoothness and sparse-depth priors on the rendered geometry channels (None when all are off)."""
+                         use_priors: bool, strategy=None) -> Tensor | None:
+    """Flatness loss and the densification strategy's own prior plus, when ``use_priors``, the
+    depth-normal, depth smoothness and dense-depth priors on the rendered geometry channels (None
+    when all are off)."""
     c = cfg
     greg = c.lambda_flat * flatten_loss(state.gaussians["log_scales"]) if c.lambda_flat > 0 else None
-    if c.densify.mode == "mcmc":
-        d = c.densify
-        prior = mcmc_regulariser(state.gaussians, d.mcmc_opacity_reg, d.mcmc_scale_reg, state.meta["extent_m"])
+    prior = strategy.regulariser(state.gaussians) if strategy is not None else None
+    if prior is not None:
         greg = prior if greg is None else greg + prior
-    if c.lambda_alpha > 0:  # coverage: 1 - alpha over the valid pixels
-        cover = c.lambda_alpha * coverage_loss(out.alpha, batch.valid)
-        greg = cover if greg is None else greg + cover
     if not use_priors:
         return greg
-    geo = out.image[..., n_feat:]  # [H, W, 4 or 5] depth, normal (, depth²)
+    geo = out.image[..., n_feat:]  # [H, W, 4] depth, normal
     terms = []
     if c.lambda_normal > 0:
-        w = image_edge_weight(batch.target, batch.valid, c.normal_edge_rel) if c.normal_edge_rel > 0 else None
-        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K, weight=w,
-                                                         depth_grad=c.normal_prior_moves_depth,
-                                                         per_gaussian=c.normal_prior_per_gaussian))
-    if c.lambda_depth_conc > 0:
-        terms.append(c.lambda_depth_conc * depth_concentration_loss(geo[..., [0, 4]], out.alpha))
+        terms.append(c.lambda_normal * depth_normal_loss(geo[..., :4], out.alpha, batch.cam.K))
     if c.lambda_depth_smooth > 0:
         terms.append(c.lambda_depth_smooth * depth_smoothness_loss(geo[..., 0], out.alpha, batch.target, batch.valid))
-    sparse = state.sparse_depth.targets(batch.index, batch.cam) if c.lambda_sparse_depth > 0 and state.sparse_depth else None
-    if sparse is not None:
-        terms.append(c.lambda_sparse_depth * sparse_depth_loss(geo[..., 0], out.alpha, *sparse))
     dense = state.dense_depth.target(batch.index, batch.cam, batch.window) if c.lambda_dense_depth > 0 and \
         state.dense_depth else None
     if dense is not None:
         terms.append(c.lambda_dense_depth * dense_depth_loss(geo[..., 0], out.alpha, dense))
-    if c.lambda_multiview > 0 and state.multiview is not None:
-        nbrs = state.multiview.neighbours(batch.index, batch.kind, state.gen)
-        terms.append(c.lambda_multiview * multiview_loss(geo[..., 0], geo[..., 1:4], out.alpha, batch.target, batch.valid,
-                                                         batch.cam, nbrs, state.gen))
     if terms:
         greg = sum(terms) if greg is None else greg + sum(terms)
     return greg
@@ -253,7 +220,7 @@ def _score_spectra(state: TrainState, cfg: TrainConfig, phase: Phase, pred: Tens
     pred = pred * _frame_gain(state, batch.index)
     greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
     loss = stage2_loss(pred, batch.target, batch.valid, cfg.beta_cos)
-    if phase in (Phase.STAGE2, Phase.REFINE) and cfg.lambda_spectral_tv > 0:  # every pixel against its neighbours
+    if phase == Phase.STAGE2 and cfg.lambda_spectral_tv > 0:  # every pixel against its neighbours
         loss = loss + cfg.lambda_spectral_tv * _spectral_tv_image(pred, batch.target, batch.valid)
     if phase == Phase.JOINT and cfg.alpha_dssim > 0:
         sel = state.stage1_bands()
@@ -267,16 +234,6 @@ def supersample_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int)
     if phase.grows and step < int(cfg.supersample_start * phase_steps):
         return 1
     return cfg.supersample
-
-
-def coarse_factor_now(cfg: TrainConfig, phase: Phase, step: int, phase_steps: int) -> int:
-    """Block size 2^k of the coarse-to-fine photometric loss at ``step`` of ``phase``: k falls from
-    ``coarse_levels`` to 1 over ``coarse_until`` of a geometry phase's ``phase_steps``, then 1."""
-    end = cfg.coarse_until * phase_steps
-    if cfg.coarse_levels <= 0 or not phase.grows or step >= end:
-        return 1
-    k = math.ceil(cfg.coarse_levels * (1 - step / end))
-    return 2 ** min(max(k, 1), cfg.coarse_levels)
 
 
 def _rasterize(state: TrainState, feats: Tensor, cam: Camera, backend: str, subset: Tensor | None,
@@ -305,37 +262,35 @@ def _decoded_features(state: TrainState, phase: Phase, lat: Tensor, cam: Camera)
 
 
 def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, phase_steps: int,
-            nbrs: Tensor | None = None, gen: torch.Generator | None = None) -> StepResult:
+            nbrs: Tensor | None = None, gen: torch.Generator | None = None, strategy=None) -> StepResult:
     """Render ``batch`` for ``phase`` and compute its loss (with the phase's regularisers).
 
     ``phase_steps``: steps of the phase (the surface priors start at ``normal_start`` of it);
     ``nbrs`` [N, 8]: neighbour indices for the stage-2 normal smoothness (when it is on).
     With decode order "gaussian" the spectral phases blend decoded spectra (eq. 13), else
-    latents decoded per pixel.
+    latents decoded per pixel. ``strategy``: the densification strategy of a growing phase (its
+    own prior joins the loss).
     """
     c = cfg
-    surf = (c.lambda_normal > 0 or c.lambda_depth_conc > 0 or c.lambda_depth_smooth > 0 or c.lambda_sparse_depth > 0
-            or c.lambda_dense_depth > 0 or c.lambda_multiview > 0)
-    # the surface priors start at normal_start of a growing phase; a refinement keeps them throughout
-    use_priors = phase.trains_geometry and surf and (not phase.grows or state.step >= int(c.normal_start * phase_steps))
+    surf = c.lambda_normal > 0 or c.lambda_depth_smooth > 0 or c.lambda_dense_depth > 0
+    # the surface priors start at normal_start of a geometry phase
+    use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
     feats = _features(state, cfg, phase, batch.cam, batch.index)
     by_gaussian = c.decode == "gaussian" and phase.fits_head
     subset = None
     if by_gaussian:
         feats, subset = _decoded_features(state, phase, feats, batch.cam)
     n_feat = feats.shape[-1]
-    if use_priors:  # depth + normal (+ depth²) channels for the surface priors
-        feats = torch.cat([feats, *_geometry_channels(state, cfg, batch.cam)], -1)
-    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=phase.grows and c.densify.absgrad,
+    if use_priors:  # depth + normal channels for the surface priors
+        feats = torch.cat([feats, camera_depth_normals(state.gaussians, batch.cam)], -1)
+    out = _rasterize(state, feats, batch.cam, c.backend, subset, absgrad=strategy is not None and strategy.absgrad,
                      ss=supersample_now(c, phase, state.step, phase_steps))
     image = out.image[..., :n_feat]
-    greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors) if phase.trains_geometry else None
+    greg = geometry_regulariser(state, cfg, out, n_feat, batch, use_priors, strategy) if phase.trains_geometry else None
     if phase.renders_colors:
         pred = composite_background(image, out.alpha, state.extra["bg_colors"])
-        pred, target, valid = area_pool(pred, batch.target, batch.valid,
-                                        coarse_factor_now(c, phase, state.step, phase_steps))
-        loss = stage1_loss(pred, target, valid, c.alpha_dssim, c.dssim_per_band)
-        return StepResult(_plus(loss, greg), masked_psnr(pred, target, valid), out)
+        loss = stage1_loss(pred, batch.target, batch.valid, c.alpha_dssim, c.dssim_per_band)
+        return StepResult(_plus(loss, greg), masked_psnr(pred, batch.target, batch.valid), out)
     if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in state.gaussians:
         greg = c.lambda_normal_smooth * normal_smoothness_loss(state.gaussians["normals"], nbrs)
     if by_gaussian:

@@ -33,23 +33,19 @@ from tqdm import tqdm
 from brfgs.data import read_scene
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
-from brfgs.model.filter3d import bake_filter, filter_variance_m2
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
 from brfgs.train.config import TrainConfig, scaled_schedule
 from brfgs.train.distributed import Comm, check_identical, check_views_per_step, launch, reduce_gradients, shard
-from brfgs.train.far_field import project_far_field
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, run_plan
 from brfgs.train.run_folder import RunFolder
-from brfgs.train.schedule import learning_rates, spec_regularisers
+from brfgs.train.schedule import learning_rates
 from brfgs.train.setup import init_head, run_setup
 from brfgs.train.dense_depth import load_dense_depth
-from brfgs.train.multiview import MultiView, view_neighbour_table
-from brfgs.train.sparse_depth import load_sparse_depth
 from brfgs.train.state import TrainState
 from brfgs.train.step import forward, make_batch, neighbours, pick_view
-from brfgs.train.strategy import DensifyStrategy
+from brfgs.train.strategy import ADCStrategy, MCMCStrategy, make_strategy
 
 
 class Trainer:
@@ -91,7 +87,6 @@ class Trainer:
         check_outside(self.out, self.scene_path)
         self._on_main(lambda: self.folder.prepare(self.cfg, self.overwrite))
         self.scene = read_scene(self.scene_path, downscale=self.cfg.downscale, split_seed=self.cfg.split_seed,
-                                split_rule=self.cfg.split_rule,
                                 value_range=tuple(self.cfg.value_range), validation=self.cfg.validation,
                                 allow_outside_links=self.cfg.allow_outside_links)
         self._scale_schedule()
@@ -113,12 +108,6 @@ class Trainer:
         if self.cfg.lambda_dense_depth > 0 and st.phase.trains_geometry:
             st.dense_depth = load_dense_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
                                               self.scene.train_indices, self.scene.height, self.scene.width)
-        if self.cfg.lambda_multiview > 0 and st.phase.trains_geometry:
-            st.multiview = MultiView(view_neighbour_table(st.cameras, self.scene.train_indices),
-                                     self._train_images(), st.cameras)
-        if self.cfg.lambda_sparse_depth > 0 and st.phase.trains_geometry:
-            st.sparse_depth = load_sparse_depth(self.folder.out / "init", [f.name for f in self.scene.frames],
-                                                self.scene.train_indices)
         self._write_status("running")
         try:
             with self._steps_finish_on_ctrl_c():
@@ -147,7 +136,7 @@ class Trainer:
         self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
                          "scale": self.cfg.stage1_steps / given.stage1_steps if given.stage1_steps else 1.0,
                          "stage1_steps": self.cfg.stage1_steps, "stage2_steps": self.cfg.stage2_steps,
-                         "refine_stop": self.cfg.densify.refine_stop,
+                         "refine_stop": self.cfg.strategy_config.refine_stop,
                          "max_gaussians_per_px": self.cfg.max_gaussians_per_px}
 
     def _run_phases(self) -> None:
@@ -156,10 +145,6 @@ class Trainer:
         while st.phase != Phase.DONE:
             tp = time.perf_counter()
             self._run_phase(st.phase, dict(self.phases)[st.phase])
-            if st.phase.trains_geometry and self.cfg.filter_3d:  # the saved geometry renders as trained
-                self._update_filter()
-                bake_filter(st.gaussians.params, st.gaussians.filter_var)
-                st.gaussians.filter_var = None
             st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
             if st.phase == Phase.STAGE1 and self.comm.is_main:
                 st.save_checkpoint(self.folder.stage1_ckpt)
@@ -255,7 +240,7 @@ class Trainer:
         """A new run (another spectral variant) from the end of a decoupled run's stage 1."""
         st, cfg = self.state, self.cfg
         tensors, meta = st.load_checkpoint(path)
-        saved = TrainConfig.from_dict(meta["config"], source=str(path))  # another build's options: name the file
+        saved = TrainConfig.from_written(meta["config"], source=str(path))  # another build's options: name the file
         at_end = meta["phase"] == Phase.STAGE1.value and int(meta["step"]) == saved.stage1_steps
         if saved.variant == "cir" or saved.joint or not at_end:
             raise UserError("not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)", file=path)
@@ -315,8 +300,7 @@ class Trainer:
         st, c = self.state, self.cfg
         if st.decoder is not None:
             st.decoder.requires_grad_(bool(c.finetune_decoder and phase.fits_head))
-        strategy = DensifyStrategy(c.densify, c.max_gaussians_per_px, self.scene.width, self.scene.height,
-                                   st.meta["extent_m"]) if phase.grows else None
+        strategy = make_strategy(c, self.scene.width, self.scene.height, st.meta["extent_m"]) if phase.grows else None
         nbrs = None  # stage 2 (means frozen): each Gaussian's 8 nearest neighbours, for the normal smoothness
         if phase == Phase.STAGE2 and c.lambda_normal_smooth > 0 and "normals" in st.gaussians:
             nbrs = neighbours(st.gaussians.means)
@@ -345,14 +329,13 @@ class Trainer:
         if bar is not None:
             bar.close()
 
-    def _one_step(self, phase: Phase, steps: int, strategy: DensifyStrategy | None, nbrs) -> tuple[float, float]:
+    def _one_step(self, phase: Phase, steps: int, strategy: ADCStrategy | MCMCStrategy | None, nbrs) -> tuple[float, float]:
         """One optimisation step on ``views_per_step`` views (this rank's share of them); returns the
         step's mean (loss, psnr) over all its views."""
         st, c = self.state, self.cfg
         st.opt.lrs = learning_rates(c, phase, st.step, steps, st.meta["extent_m"],
                                     [k for k, _ in st.neural.named_parameters()] if st.neural is not None else (),
                                     [k for k, _ in st.decoder.named_parameters()] if st.decoder is not None else ())
-        st.opt.weight_decay, st.opt.shrink = spec_regularisers(c, phase)
         nv = c.views_per_step
         views = [pick_view(st, self.scene.train_indices, self.scene.width, self.scene.height, c, phase)
                  for _ in range(nv)]
@@ -362,12 +345,11 @@ class Trainer:
                                        for x in torch.randint(0, 2**62, (nv,), generator=st.gen)]
         params = st.params()
         NamedAdam.zero_grad(params)
-        if phase.trains_geometry and c.filter_3d and st.gaussians.filter_var is None:
-            self._update_filter()
         stats = DensifyState(st.gaussians.n) if strategy is not None else None  # this step's statistics
         sums = torch.zeros(3, dtype=torch.float64)  # loss, psnr summed over this rank's views; Ctrl-C seen
         for (i, win), gen in shard(list(zip(views, gens)), self.comm):
-            res = forward(st, c, phase, make_batch(st, self._train_images(), phase, i, win), steps, nbrs, gen=gen)
+            res = forward(st, c, phase, make_batch(st, self._train_images(), phase, i, win), steps, nbrs, gen=gen,
+                          strategy=strategy)
             if strategy is not None:
                 strategy.before_backward(res.out)
             (res.loss if nv == 1 else res.loss / nv).backward()
@@ -384,20 +366,10 @@ class Trainer:
         tot = self.comm_totals.setdefault(phase.value, [0, 0])
         tot[0], tot[1] = tot[0] + sent, tot[1] + 1
         st.opt.step(params)
-        if phase.trains_geometry:
-            project_far_field(st.gaussians)
         st.step += 1
         if strategy is not None:
             strategy.after_step(st.gaussians, st.opt, st.densify, st.step, steps, st.gen)
-            if c.filter_3d and st.step % c.densify.refine_every == 0:  # as Mip-Splatting: every 100 steps
-                self._update_filter()
         return float(sums[0]) / nv, float(sums[1]) / nv
-
-    def _update_filter(self) -> None:
-        """Mip-Splatting's 3D filter of the Gaussians' current means from the training views."""
-        st = self.state
-        st.gaussians.filter_var = filter_variance_m2(st.gaussians.means.detach(),
-                                                     [st.cameras[i] for i in self.scene.train_indices])
 
     def _merge_densify_stats(self, stats: DensifyState) -> int:
         """Add the step's densification statistics, summed over the ranks, to the run's; returns the

@@ -1,4 +1,4 @@
-"""The live web viewer (``brfgs view RUN``, issue #18).
+"""The live web viewer (``brfgs view RUN``).
 
 Pure, unit-tested pieces (no viser needed): :mod:`.cameras` (viser's browser camera ↔ brfgs's
 OpenGL camera-to-world), :mod:`.formula` (band-ratio formulas parsed without ``eval``),

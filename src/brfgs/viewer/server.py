@@ -25,6 +25,7 @@ from brfgs.analysis.brf import training_footprint_m
 from brfgs.analysis.brf_report import open_model_scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel
+from brfgs.viewer.options import ViewerOptions
 from brfgs.viewer.cameras import c2w_from_viser, fov_from_intrinsics, intrinsics_from_fov, viser_from_c2w
 from brfgs.viewer.formula import NDVI
 from brfgs.viewer.frames import FrameResult, frame_comparison, parse_mode, render_frame
@@ -32,26 +33,11 @@ from brfgs.viewer.roi import RoiResult, disc_roi, hit_point, polar_image, roi_di
 
 __all__ = ["ViewerOptions", "Viewer"]
 
+
 SHADOW_NOTE = ("**Shadows are baked into the model.** The sun sliders re-evaluate the kernels (iso, vol, geo, "
                "spec) for the new sun; cast shadows stay where they were at acquisition.")
 DISPLAY_CHOICES = ("cir", "truecolor", "band", "index", "depth", "normals", "alpha",
                    "kernel:iso", "kernel:vol", "kernel:geo", "kernel:spec")
-
-
-@dataclass
-class ViewerOptions:
-    """Options of the viewer: address, frame heights (px) moving / at rest, backend, ROI output folder."""
-
-    host: str = "127.0.0.1"
-    port: int = 8080
-    height_px: int = 384
-    moving_height_px: int = 128
-    settle_s: float = 0.25
-    backend: str = "auto"
-    out_dir: Path = Path("viewer_rois")
-    roi_step_deg: float = 5.0
-    polar_azimuths: int = 24
-    polar_zeniths: int = 8
 
 
 def _serial_lock(lock: threading.Lock):
@@ -274,7 +260,7 @@ class Viewer:
             client.add_notification("No ROI yet", "Click on the surface first.", auto_close_seconds=4.0)
             return
         self.n_saved += 1
-        out = Path(self.opts.out_dir) / f"roi_{self.n_saved:02d}"
+        out = Path(self.opts.out_dir or "viewer_rois") / f"roi_{self.n_saved:02d}"
         paths = save_roi(self.roi, out)
         client.add_notification("ROI saved", f"{len(paths)} files in {out}", auto_close_seconds=6.0)
 

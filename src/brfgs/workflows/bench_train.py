@@ -6,7 +6,7 @@ seed; the reference rounds decode with :meth:`SpectralAutoencoder.decode` throug
 :func:`brfgs.spectral.fast_decode.reference_decoding`), reads each run's phase timings from run.json
 and evaluates the test views. Reported: the median seconds per phase and per step of each decoder,
 their ratio (reference / fused, same run), and the CIR PSNR and SAM of both (the fused decoder must not
-change accuracy beyond float rounding: issue 17 asks for 0.1 dB / 2 %).
+change accuracy beyond float rounding: the benchmark reports the difference).
 """
 
 from __future__ import annotations

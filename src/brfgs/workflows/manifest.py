@@ -170,8 +170,9 @@ def train_config(options: dict, file: Path, where: str) -> TrainConfig:
     if name not in PRESETS:
         raise UserError(f"unknown preset {name!r}; choose {', '.join(PRESETS)}", file=file, field=f"{where}.preset")
     base = preset(name).to_dict()
-    if isinstance(given.get("densify"), dict):
-        given["densify"] = {**base["densify"], **given["densify"]}
+    for key in ("densify", "mcmc"):
+        if isinstance(given.get(key), dict):
+            given[key] = {**base[key], **given[key]}
     base.update(given)
     try:
         return TrainConfig.from_dict(base, source=str(file)).validate()
@@ -232,7 +233,7 @@ def _resources(options: dict, file: Path, where: str) -> tuple[int, float]:
 def _merge(defaults: dict, raw: dict) -> dict:
     """A scene's options: ``defaults`` < ``raw``; the tables ``densify`` and ``products`` merge key by key."""
     out = {**defaults, **raw}
-    for key in ("densify", "products"):
+    for key in ("densify", "mcmc", "products"):
         if isinstance(defaults.get(key), dict) and isinstance(raw.get(key), dict):
             out[key] = {**defaults[key], **raw[key]}
     return out
