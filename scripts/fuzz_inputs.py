@@ -230,10 +230,81 @@ def mut_links(rng: random.Random, root: Path) -> Mutation:
     return Mutation(f"link outside the scene: {kind}", "invalid")
 
 
-MUTATORS = (mut_transforms_number, mut_transforms_structure, mut_header, mut_data, mut_links)
-
-
 # ------------------------------------------------------------------------------------------ one case
+ORIGIN = {"latitude_deg": 48.1, "longitude_deg": 11.5, "altitude_m": 520.0}
+BAD_NUMBERS = {"nan": "NaN", "inf": "Infinity", "1e308": "1e308", "-1e308": "-1e308", "2**63": str(2**63),
+               "string": '"12"', "list": "[1, 2]", "bool": "true", "null": "null"}
+
+
+def _with_raw(root: Path, meta: dict, value: str) -> None:
+    """transforms.json with the placeholder "__V__" of ``meta`` replaced by the raw JSON ``value``."""
+    _put_json(root, None, json.dumps(meta, indent=1).replace('"__V__"', value))
+
+
+def mut_flight_fields(rng: random.Random, root: Path) -> Mutation:
+    """The fields of a real flight: a frame's time, own sun, irradiance scale and camera, the origin,
+    the CRS; out-of-range, malformed or mistyped values must be refused, well-formed ones accepted."""
+    meta, k = _json(root), rng.randrange(3)
+    fr = meta["frames"][k]
+    kind = rng.choice(["time", "origin", "irradiance", "frame_sun", "frame_camera", "crs"])
+    if kind == "time":
+        meta["origin"] = dict(ORIGIN)
+        value = rng.choice(["9999-12-31T12:00:00Z", "0001-01-01T00:00:00Z", "1677-09-21T00:13:00Z",
+                            "2262-04-12T00:00:00Z", "2024-06-21T10:00:00", "2024-13-40T00:00:00Z",
+                            "2024-06-21T10:00:00+25:00", "yesterday", 12, None, "2024-06-21T10:32:05Z",
+                            "2024-06-21T12:32:05+02:00"])
+        fr["time"] = value
+        if value is None:
+            del fr["time"]
+        _put_json(root, meta)
+        ok = value in (None, "2024-06-21T10:32:05Z", "2024-06-21T12:32:05+02:00")
+        return Mutation(f"frame time {value!r}", "valid" if ok else "invalid")
+    if kind == "origin":
+        key = rng.choice(["latitude_deg", "longitude_deg", "altitude_m"])
+        meta["origin"] = dict(ORIGIN)
+        bad = rng.choice(list(BAD_NUMBERS) + ["out_of_range", "valid"])
+        if bad == "valid":
+            _put_json(root, meta)
+            return Mutation("origin valid", "valid")
+        meta["origin"][key] = "__V__"
+        raw = {"latitude_deg": "91.5", "longitude_deg": "-181", "altitude_m": "1e9"}[key] if bad == "out_of_range" \
+            else BAD_NUMBERS[bad]
+        _with_raw(root, meta, raw)
+        return Mutation(f"origin {key} = {bad}", "invalid")
+    if kind in ("irradiance", "frame_sun"):
+        key = "irradiance_scale" if kind == "irradiance" else rng.choice(["sun_zenith_deg", "sun_azimuth_deg"])
+        if kind == "frame_sun":
+            fr["sun_zenith_deg"], fr["sun_azimuth_deg"] = 40.0, 120.0
+        bad = rng.choice(list(BAD_NUMBERS) + ["zero", "negative", "out_of_range", "valid"])
+        raw = {"zero": "0", "negative": "-0.5", "out_of_range": "1e6", "valid": "1.1" if kind == "irradiance" else "45.0"}
+        fr[key] = "__V__"
+        _with_raw(root, meta, raw.get(bad) or BAD_NUMBERS[bad])
+        if bad == "valid" or (kind == "frame_sun" and bad in ("zero", "negative") and key == "sun_azimuth_deg") or \
+                (kind == "frame_sun" and bad == "zero") or (kind == "irradiance" and bad == "null"):  # null: not given
+            return Mutation(f"frame {key} = {bad}", "valid")
+        return Mutation(f"frame {key} = {bad}", "invalid")
+    if kind == "frame_camera":
+        key = rng.choice(["fl_x", "fl_y", "cx", "w", "h", "k1"])
+        fr.update({"camera_model": "OPENCV", "fl_x": meta["fl_x"], "fl_y": meta["fl_y"], "cx": meta["cx"],
+                   "cy": meta["cy"], "w": W, "h": H, "k1": -0.05, "k2": 0.0, "p1": 0.0, "p2": 0.0})
+        bad = rng.choice(list(BAD_NUMBERS) + ["zero", "negative", "valid"])
+        if bad == "valid":
+            _put_json(root, meta)
+            return Mutation("frame camera valid", "valid")
+        fr[key] = "__V__"
+        _with_raw(root, meta, {"zero": "0", "negative": "-3"}.get(bad) or BAD_NUMBERS[bad])
+        either = key in ("cx", "k1") and bad in ("zero", "negative")  # a principal point or distortion may be so
+        return Mutation(f"frame camera {key} = {bad}", "either" if either else "invalid")
+    meta["origin"] = dict(ORIGIN)
+    value = rng.choice(["EPSG:32632", "EPSG:99999999", "not a crs", 5])
+    meta["crs"] = value
+    _put_json(root, meta)
+    return Mutation(f"crs {value!r}", "valid" if value == "EPSG:32632" else "invalid")
+
+
+MUTATORS = (mut_transforms_number, mut_transforms_structure, mut_header, mut_data, mut_links, mut_flight_fields)
+
+
 def snapshot(root: Path) -> dict[str, tuple[int, int]]:
     return {str(p.relative_to(root)): (p.lstat().st_size, p.lstat().st_mtime_ns)
             for p in sorted(root.rglob("*"))}

@@ -16,6 +16,7 @@ class UserError(Exception):
     def __init__(self, message: str, *, file: str | Path | None = None, field: str | None = None):
         self.file = str(file) if file is not None else None
         self.field = field
+        message = " ".join(str(message).split())  # one line, whatever a library's message held
         self.detail = message
         parts = []
         if file is not None:

@@ -30,6 +30,9 @@ if TYPE_CHECKING:
 __all__ = ["solar_position", "frame_suns"]
 
 
+YEARS = (1900, 2200)  # frame times outside these years are input errors (and outside what pandas holds in ns)
+
+
 def solar_position(times_utc: list[str] | pd.DatetimeIndex, origin: Origin) -> tuple[np.ndarray, np.ndarray]:
     """(zenith deg, azimuth deg clockwise from north) [N] of the sun at ``origin`` at the given times
     (NREL SPA via pvlib; standard atmosphere at the origin's altitude, 12 °C)."""
@@ -54,7 +57,10 @@ def _parse_time(v, tf: Path, field: str) -> pd.Timestamp:
     if t is None or t.tzinfo is None:
         raise UserError(f"expected an ISO 8601 time with a UTC offset such as '2024-06-21T10:32:05Z', got {v!r}",
                         file=tf, field=field)
-    return t.tz_convert("UTC")
+    t = t.tz_convert("UTC")
+    if not YEARS[0] <= t.year <= YEARS[1]:
+        raise UserError(f"expected a time in the years {YEARS[0]}-{YEARS[1]}, got {v!r}", file=tf, field=field)
+    return t
 
 
 def frame_suns(meta: dict, origin: Origin | None, tf: Path) -> tuple[np.ndarray, np.ndarray, float, float, list]:

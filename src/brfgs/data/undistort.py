@@ -30,6 +30,8 @@ __all__ = ["CAMERA_MODELS", "DIST_KEYS", "FrameCamera", "read_frame_camera", "re
 CAMERA_MODELS = ("PINHOLE", "OPENCV")
 DIST_KEYS = ("k1", "k2", "p1", "p2")
 _INTR_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+MAX_IMAGE_SIDE = 65_535  # pixels a side of an image (COLMAP's and TIFF's practical limit)
+MAX_FOCAL_PX = 1e7  # a focal length beyond this many pixels is not a camera's
 
 
 @dataclass(frozen=True)
@@ -53,15 +55,18 @@ def read_frame_camera(d: dict, tf: Path, field: str, base: dict | None = None) -
     the intrinsics are not all given. UserError naming ``field.key`` for bad values."""
     merged = dict(base or {})
     merged.update({k: d[k] for k in ("camera_model", *_INTR_KEYS, *DIST_KEYS) if k in d})
+    given_null = [k for k in (*_INTR_KEYS, *DIST_KEYS) if k in d and d[k] is None]
+    if given_null:
+        raise UserError("expected a number, found null", file=tf, field=f"{field}{given_null[0]}")
     model = merged.get("camera_model", "PINHOLE")
     if model not in CAMERA_MODELS:
         raise UserError(f"camera model {model!r} not supported, expected one of {', '.join(CAMERA_MODELS)}",
                         file=tf, field=f"{field}camera_model")
     if not all(merged.get(k) is not None for k in _INTR_KEYS):
         return None
-    w = V.number(merged["w"], tf, f"{field}w", lo=1, integer=True)
-    h = V.number(merged["h"], tf, f"{field}h", lo=1, integer=True)
-    fx, fy = (V.number(merged[k], tf, f"{field}{k}", lo=1e-9) for k in ("fl_x", "fl_y"))
+    w = V.number(merged["w"], tf, f"{field}w", lo=1, hi=MAX_IMAGE_SIDE, integer=True)
+    h = V.number(merged["h"], tf, f"{field}h", lo=1, hi=MAX_IMAGE_SIDE, integer=True)
+    fx, fy = (V.number(merged[k], tf, f"{field}{k}", lo=1e-3, hi=MAX_FOCAL_PX) for k in ("fl_x", "fl_y"))
     cx, cy = V.number(merged["cx"], tf, f"{field}cx"), V.number(merged["cy"], tf, f"{field}cy")
     if not 0 < cx < w:
         raise UserError(f"principal point cx = {cx:g} lies outside the image width w = {w}", file=tf, field=f"{field}cx")

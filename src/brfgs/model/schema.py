@@ -85,3 +85,22 @@ def check_tensors(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:
             raise UserError("holds NaN or infinite values (damaged file?)", file=path, field=name)
     if meta["appearance"] != "cir":
         _check(any(k.startswith("decoder.") for k in tensors), "missing the decoder's tensors", path, "decoder.")
+    for name in required_tensors(meta):
+        _check(name in tensors, "missing tensor", path, name)
+
+
+def required_tensors(meta: dict) -> list[str]:
+    """The tensors a model of ``meta``'s appearance and head cannot render without (besides the
+    geometry and the decoder): the head's latents, the roughness of a specular head, the
+    background (a checkpoint of stage 1 has no head yet: its colours' background only)."""
+    head, appearance = meta["head"], meta["appearance"]
+    if meta.get("phase") == "stage1":
+        return ["extra.bg_colors"]
+    if head.get("kind") == "hybrid":
+        comps = head.get("components") or ()
+        names = [f"param.z_{c}" for c in comps] + (["param.rho_raw"] if "spec" in comps else [])
+    elif head.get("kind") == "neural":
+        names = ["param.feat", "neural.net.0.weight"]
+    else:
+        names = ["param.sh"]
+    return names + (["extra.bg_colors"] if appearance == "cir" else ["extra.bg_latent"])

@@ -31,10 +31,24 @@ OWNED_OUTPUTS = (CONFIG_FILE, "split.json", "bands.json", "autoencoder.json", LO
                  MODEL_FILE, "checkpoints", "init", "metrics.json", "eval")
 
 
+RUN_STATES = ("running", "interrupted", "finished")
+
+
 def run_status(out: Path) -> str | None:
-    """Status recorded in ``out/run.json`` ("running", "interrupted", "finished") or None."""
+    """Status recorded in ``out/run.json`` ("running", "interrupted", "finished"); "finished" for a
+    folder with a model file but no run.json; None for no run. UserError naming run.json when it is
+    damaged."""
     p = Path(out) / RUN_FILE
-    return json.loads(p.read_text()).get("status") if p.is_file() else None
+    if not p.is_file():
+        return "finished" if (Path(out) / MODEL_FILE).is_file() else None
+    try:
+        status = json.loads(p.read_text()).get("status")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        status = None
+    if status not in RUN_STATES:
+        raise UserError("damaged run status (not a JSON object with a status of "
+                        f"{', '.join(RUN_STATES)}); pass --overwrite to start again", file=p, field="status")
+    return status
 
 
 class RunFolder:
@@ -51,7 +65,12 @@ class RunFolder:
     def prepare(self, cfg: TrainConfig, overwrite: bool) -> None:
         """Create the folder; refuse a finished run (unless ``overwrite``), a foreign non-empty
         folder, or resuming an unfinished run with other options; write config.json."""
-        status = run_status(self.out)
+        try:
+            status = run_status(self.out)
+        except UserError:
+            if not overwrite:
+                raise
+            status = "interrupted"  # a damaged status file: --overwrite starts again
         if status == "finished" and not overwrite:
             raise UserError("a finished training run exists here; pass --overwrite to replace it "
                             "(or choose another output folder)", file=self.out)
@@ -88,11 +107,15 @@ class RunFolder:
         run repeats), so that no (phase, step) appears twice."""
         if not self.log.is_file():
             return
+        body = [r for r in self._log_rows() if keep(r[0], int(r[1]))]
+        with atomic.atomic_path(self.log) as tmp, open(tmp, "w", newline="") as fh:
+            csv.writer(fh).writerows([LOG_HEADER] + body)
+
+    def _log_rows(self) -> list[list[str]]:
+        """The whole data rows of train_log.csv (a header, a torn last line or other junk left out)."""
         with open(self.log, newline="") as fh:
             rows = list(csv.reader(fh))
-        body = [r for r in rows[1:] if len(r) >= 2 and r[1].isdigit() and keep(r[0], int(r[1]))]
-        with atomic.atomic_path(self.log) as tmp, open(tmp, "w", newline="") as fh:
-            csv.writer(fh).writerows(rows[:1] + body)
+        return [r for r in rows if len(r) == len(LOG_HEADER) and r[1].isdigit()]
 
     def _remove_outputs(self) -> None:
         """Remove only what a training run writes."""
@@ -113,6 +136,10 @@ class RunFolder:
 
     def open_log(self):
         """(file handle, csv writer) appending to train_log.csv, the header written once."""
+        if self.log.exists() and self.log.read_text().splitlines()[:1] != [",".join(LOG_HEADER)]:
+            rows = self._log_rows()  # a kill lost the header (or tore a line): write the file again
+            with atomic.atomic_path(self.log) as tmp, open(tmp, "w", newline="") as fh:
+                csv.writer(fh).writerows([LOG_HEADER] + rows)
         new = not self.log.exists()
         fh = open(self.log, "a", newline="")
         writer = csv.writer(fh)

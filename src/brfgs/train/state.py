@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from brfgs.brdf.geometry import sun_direction
+from brfgs.errors import UserError
 from brfgs.brdf.head import HeadConfig
 from brfgs.model import DensifyState, GaussianModel, NamedAdam, TrainedModel
 from brfgs.model import io
@@ -124,8 +125,9 @@ class TrainState:
         return self.trained_model(final=True).save(path)
 
     def load_checkpoint(self, path: Path) -> tuple[dict[str, Tensor], dict]:
-        """Restore the model part of a checkpoint (validated); returns its (tensors, meta)."""
+        """Restore the model part of a checkpoint (validated, the resume state too); returns its (tensors, meta)."""
         tensors, meta = io.load(path)
+        check_resume_state(tensors, meta, Path(path))
         tm = TrainedModel.from_file_contents(tensors, meta, Path(path))
         self.meta = {k: meta[k] for k in SETUP_KEYS if k in meta}
         self.gaussians = tm.gaussians
@@ -148,3 +150,29 @@ class TrainState:
         self.perm = list(meta.get("perm", []))
         self.phase = Phase(meta["phase"])
         self.step = int(meta["step"])
+
+
+def check_resume_state(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:
+    """UserError naming the checkpoint and the field unless it holds a whole resume state: the phase
+    and step, the optimiser's step counts, the generator state and the densification statistics of
+    every Gaussian (a file without its checksum is checked all the same)."""
+    means = tensors.get("param.means")
+    n = None if means is None else means.shape[0]
+
+    def need(ok: bool, field: str, what: str) -> None:
+        if not ok:
+            raise UserError(f"{what}: not a whole checkpoint (delete it to resume from the one before, or pass "
+                            "--overwrite to start again)", file=path, field=field)
+
+    need(meta.get("phase") in {p.value for p in Phase}, "phase", f"unknown phase {meta.get('phase')!r}")
+    step = meta.get("step")
+    need(isinstance(step, int) and not isinstance(step, bool) and step >= 0, "step", f"bad step {step!r}")
+    optim = meta.get("optim")
+    need(isinstance(optim, dict) and isinstance(optim.get("t"), dict), "optim", "no optimiser state")
+    rng = tensors.get("rng.torch")
+    need(rng is not None and rng.dtype == torch.uint8, "rng.torch", "no generator state")
+    for key in ("densify.grad2d", "densify.count"):
+        t = tensors.get(key)
+        need(t is not None and n is not None and tuple(t.shape) == (n,), key,
+             f"no densification statistics of {n} Gaussians")
+    need(isinstance(meta.get("config"), dict), "config", "no training options")

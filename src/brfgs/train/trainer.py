@@ -76,6 +76,7 @@ class Trainer:
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
         self._ctrl_c = False  # Ctrl-C seen by this process (see _steps_finish_on_ctrl_c)
+        self._aborted = False  # a second Ctrl-C stopped a step half done: its state is not saved
         self._stop_requested = False  # ... by any rank, agreed at the end of the last step
         self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
         self.schedule: dict | None = None  # the schedule scaled to the training views (set when the scene is read)
@@ -113,6 +114,10 @@ class Trainer:
             with self._steps_finish_on_ctrl_c():
                 self._run_phases()
         except KeyboardInterrupt:
+            if self._aborted:  # mid-step: the last whole checkpoint stays the resume point
+                self._write_status("interrupted")
+                self.log("stopped at once: rerun the same command to resume from the last checkpoint")
+                raise
             self._checkpoint()
             self._write_status("interrupted")
             self.log(f"interrupted: checkpoint saved at {st.phase.value} step {st.step}; rerun the same command to resume")
@@ -120,8 +125,9 @@ class Trainer:
         st.timings["total_this_session"] = time.perf_counter() - t0
         path = self.folder.model
         if self.comm.is_main:
-            st.save_model(path)
-            self._write_status("finished")
+            with sigint_held(lambda: self.log("interrupt: writing the model first")):
+                st.save_model(path)
+                self._write_status("finished")
         self.comm.barrier()
         return path
 
@@ -147,7 +153,8 @@ class Trainer:
             self._run_phase(st.phase, dict(self.phases)[st.phase])
             st.timings[st.phase.value] = st.timings.get(st.phase.value, 0.0) + time.perf_counter() - tp
             if st.phase == Phase.STAGE1 and self.comm.is_main:
-                st.save_checkpoint(self.folder.stage1_ckpt)
+                with sigint_held(self._hold_ctrl_c):
+                    st.save_checkpoint(self.folder.stage1_ckpt)
             self._begin_phase(next_phase(self.phases, st.phase))
             self._checkpoint()
 
@@ -155,14 +162,15 @@ class Trainer:
     def _steps_finish_on_ctrl_c(self):
         """While the phases run, Ctrl-C (SIGINT) ends the run at the end of the current step, on every
         rank at the same step (the request is all-reduced with the step's losses), so that the
-        checkpoint holds a whole step; a second Ctrl-C stops at once. Only in the main thread."""
-        self._ctrl_c = False
+        checkpoint holds a whole step; a second Ctrl-C stops at once (the half-done step is not saved:
+        the last checkpoint stays the resume point). Only in the main thread."""
         if threading.current_thread() is not threading.main_thread():
             yield
             return
 
         def handler(signum, frame):
             if self._ctrl_c:
+                self._aborted = True
                 raise KeyboardInterrupt
             self._ctrl_c = True
             self.log("interrupt: finishing the current step, then saving a checkpoint (Ctrl-C again to stop now)")
@@ -210,11 +218,18 @@ class Trainer:
         return self.images
 
     def _checkpoint(self) -> None:
-        """Save the resume state (the newest two are kept) and show the progress in run.json (rank 0)."""
+        """Save the resume state (the newest two are kept) and show the progress in run.json (rank 0);
+        Ctrl-C during the save waits until it ends (:func:`sigint_held`)."""
         if not self.comm.is_main:
             return
-        self.state.save_checkpoint(self.folder.rotate_checkpoints())
-        self._write_status("running")
+        with sigint_held(self._hold_ctrl_c):
+            self.state.save_checkpoint(self.folder.rotate_checkpoints())
+            self._write_status("running")
+
+    def _hold_ctrl_c(self) -> None:
+        """Ctrl-C while a checkpoint is written: the run stops at the next step boundary."""
+        self._ctrl_c = True
+        self.log("interrupt: finishing the checkpoint first, then stopping at the end of the step")
 
     def _resume(self) -> None:
         """Continue from the newest resume checkpoint that loads (a damaged one is reported and
@@ -408,3 +423,17 @@ def train_parallel(nproc: int, scene_path, out_dir, cfg: TrainConfig, overwrite:
     check_views_per_step(cfg.validate().views_per_step, nproc)  # before any process starts
     launch(nproc, train_rank, (Path(scene_path), Path(out_dir), cfg, overwrite, from_stage1, quiet))
     return RunFolder(out_dir).model
+
+
+@contextlib.contextmanager
+def sigint_held(on_press):
+    """Hold Ctrl-C (SIGINT) off while the block runs (a checkpoint being written): a press calls
+    ``on_press()`` instead of interrupting the write. Only in the main thread (elsewhere: no change)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: on_press())
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
