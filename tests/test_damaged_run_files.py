@@ -34,7 +34,7 @@ def _rewrite(path: Path, drop: str | None = None, meta_edit=None, keep_checksum:
     save_file(tensors, str(path), metadata=md)
 
 
-@pytest.mark.parametrize("tensor", ["param.z_spec", "param.rho_raw", "extra.bg_latent", "decoder.dec_lin.weight",
+@pytest.mark.parametrize("tensor", ["param.z_spec", "param.rho_raw", "param.z_iso", "decoder.dec_lin.weight",
                                     "param.quats"])
 @pytest.mark.parametrize("keep_checksum", [False, True])
 def test_a_model_missing_a_tensor_is_refused(tmp_path, capsys, tensor, keep_checksum):

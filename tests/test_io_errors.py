@@ -68,3 +68,23 @@ def test_full_disk_is_one_line_exit_3(scene, run, tmp_path, monkeypatch, capsys,
         if folder.exists():
             assert _partials(folder) == []
             assert not [p for p in folder.rglob("*") if p.name.endswith(target) and p not in before]
+
+
+def test_json_files_never_hold_a_nan_token(tmp_path):
+    """Every JSON brfgs writes goes through brfgs.data.atomic: non-finite numbers become null, so the
+    files are strict JSON (Python's NaN token is not JSON)."""
+    import json
+    import math
+
+    import numpy as np
+
+    from brfgs.data import atomic
+
+    obj = {"a": float("nan"), "b": [1.0, float("inf"), -float("inf")], "c": np.float32(np.nan), "d": np.float64(2.5),
+           "e": (1, 2), "f": {"g": float("nan")}, "h": "NaN"}
+    path = atomic.write_json(tmp_path / "x.json", obj)
+    text = path.read_text()
+    assert "NaN" not in text.replace('"NaN"', "") and "Infinity" not in text
+    back = json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+    assert back == {"a": None, "b": [1.0, None, None], "c": None, "d": 2.5, "e": [1, 2], "f": {"g": None}, "h": "NaN"}
+    assert math.isfinite(back["d"])

@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from brfgs.data.lock import releases_locks
 from brfgs.analysis import brf as B
 from brfgs.analysis import plots
 from brfgs.analysis.options import BRFOptions, TruthOptions
@@ -367,6 +368,7 @@ def _stderr(message: str) -> None:
     print(message, file=sys.stderr)
 
 
+@releases_locks
 def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
                warn: Callable[[str], None] = _stderr) -> Report:
     """``brfgs brf``: the BRF of the ROI ``opts.roi`` of the model of ``run``, written into ``out``

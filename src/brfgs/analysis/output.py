@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from brfgs.data.lock import LOCK_NAME, acquire
 from brfgs.errors import UserError
 
 __all__ = ["check_output_dir", "prepare_output_dir", "run_folder", "safe_name", "Report", "SPLITS", "metrics_file"]
@@ -39,15 +40,20 @@ def check_output_dir(out: Path, scene_root: Path | None = None, overwrite: bool 
         if (out / marker).exists():
             raise UserError(f"a finished result ({marker}) is already here; pass --overwrite to replace it",
                             file=out)
-    elif any(out.iterdir()):
+    elif any(p.name != LOCK_NAME for p in out.iterdir()):
         raise UserError("output folder exists and is not empty; pass --overwrite to replace it", file=out)
 
 
 def prepare_output_dir(out: Path, marker: str, overwrite: bool, scene_root: str | None) -> Path:
-    """:func:`check_output_dir` against the model's scene folder (when it still exists), then create ``out``."""
+    """``out`` created and locked for this process (:mod:`brfgs.data.lock`; the caller releases it, e.g.
+    with :func:`brfgs.data.lock.releases_locks`), after :func:`check_output_dir` against the model's
+    scene folder (when it still exists): the finished-result check happens under the lock."""
     root = Path(scene_root) if scene_root and Path(scene_root).exists() else None
+    check_output_dir(out, root, overwrite=True)  # never inside the scene, before anything is created
+    if out.exists() and not out.is_dir():
+        raise UserError("output path exists and is not a folder", file=out)
+    acquire(out, f"{marker.split('.')[0]} output")
     check_output_dir(out, root, overwrite=overwrite, marker=marker)
-    out.mkdir(parents=True, exist_ok=True)
     return out
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from brfgs.data.lock import releases_locks
 from brfgs.analysis import plots, views
 from brfgs.analysis.options import RenderOptions
 from brfgs.analysis.output import Report, prepare_output_dir, run_folder
@@ -134,6 +135,7 @@ def _path_views(out: Path, vw: _Viewer, opts: RenderOptions, vz: float, va: floa
     return f"rendered {len(seq)} frames ({np.median(times) * 1000:.0f} ms each) -> {gif}"
 
 
+@releases_locks
 def render_report(run: str | Path, opts: RenderOptions, out: str | Path | None = None) -> Report:
     """``brfgs render``: render the model of ``run`` (run folder or model file) as ``opts`` asks and
     write the files into ``out`` (default RUN/analysis/render_z<Z>_a<A>[_<path>])."""

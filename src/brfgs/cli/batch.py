@@ -12,6 +12,7 @@ from pathlib import Path
 import typer
 
 from brfgs.cli._config import apply_options, config_command
+from brfgs.data.lock import folder_lock
 from brfgs.workflows.options import BatchConfig
 
 
@@ -33,7 +34,8 @@ def register(app: typer.Typer) -> None:
         if bc.dry_run:
             typer.echo("\n".join(plan_lines(m, bc)))
             return
-        res = run_batch(m, bc, say=(lambda *a: None) if bc.quiet else typer.echo)
+        with folder_lock(m.out, "brfgs batch"):  # one batch per output root
+            res = run_batch(m, bc, say=(lambda *a: None) if bc.quiet else typer.echo)
         typer.echo(res.markdown)
         typer.echo(f"summary: {res.paths['md']}  {res.paths['csv']}  {res.paths['json']}")
         for line in res.failures:

@@ -9,6 +9,7 @@ from dataclasses import asdict
 import typer
 
 from brfgs.cli._config import apply_options, config_command
+from brfgs.data.lock import folder_lock
 from brfgs.errors import UserError
 from brfgs.sim.options import LAYOUTS, SimulateOptions
 
@@ -28,10 +29,13 @@ def register(app: typer.Typer) -> None:
         cfg = SimConfig(**asdict(o.sim))
         if o.layout not in LAYOUTS:
             raise UserError(f"expected one of {', '.join(LAYOUTS)}, got {o.layout!r}", field="--layout")
-        if o.layout == "native":
-            path = simulate(out, cfg, overwrite=o.overwrite, progress=not o.quiet, resume=o.resume)
-        else:
-            path = _simulate_colmap(out, cfg, o.overwrite, o.resume, o.quiet)
+        if out.exists() and not out.is_dir():
+            raise UserError("output path exists and is not a folder", file=out)
+        with folder_lock(out, "brfgs simulate"):  # one writer: the folder checks and the simulation under it
+            if o.layout == "native":
+                path = simulate(out, cfg, overwrite=o.overwrite, progress=not o.quiet, resume=o.resume)
+            else:
+                path = _simulate_colmap(out, cfg, o.overwrite, o.resume, o.quiet)
         t = getattr(simulate, "last_timing", {"setup_s": 0.0, "view_s": [], "total_s": 0.0})
         per_view = sorted(t["view_s"])[len(t["view_s"]) // 2] if t["view_s"] else float("nan")
         typer.echo(f"wrote {path} ({cfg.n_views()} views, {cfg.bands} bands, {cfg.size}x{cfg.size}, spp {cfg.spp} "

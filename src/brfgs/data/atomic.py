@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 from pathlib import Path
 from typing import Iterator
@@ -38,9 +39,27 @@ def write_text(path: str | Path, text: str) -> Path:
     return Path(path)
 
 
+def finite_json(obj):
+    """``obj`` with every non-finite float (NaN, ±inf, which JSON cannot hold) as None (null), and
+    numpy scalars as Python numbers: what :func:`json_text` writes."""
+    if isinstance(obj, float) or (hasattr(obj, "dtype") and getattr(obj, "shape", None) == ()):
+        v = obj.item() if hasattr(obj, "item") else obj
+        return v if not isinstance(v, float) or math.isfinite(v) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    return obj
+
+
+def json_text(obj, indent: int | None = None, sort_keys: bool = False) -> str:
+    """Strict JSON of ``obj`` (non-finite numbers as null, never a bare NaN token)."""
+    return json.dumps(finite_json(obj), indent=indent, sort_keys=sort_keys, allow_nan=False)
+
+
 def write_json(path: str | Path, obj, indent: int | None = 1, sort_keys: bool = False) -> Path:
     """Write ``obj`` as JSON to ``path`` atomically."""
-    return write_text(path, json.dumps(obj, indent=indent, sort_keys=sort_keys))
+    return write_text(path, json_text(obj, indent=indent, sort_keys=sort_keys))
 
 
 @contextlib.contextmanager

@@ -28,6 +28,8 @@ import numpy as np
 import pycolmap
 import tifffile
 
+from brfgs.data import atomic
+from brfgs.data.lock import LOCK_NAME
 from brfgs.data.cameras import GL_TO_CV
 from brfgs.data.cube_io import read_block_averaged
 from brfgs.data.validation import RangeTally
@@ -105,7 +107,7 @@ def prepare_project_dir(project: Path, overwrite: bool, resume: bool) -> None:
     folders holding anything else are refused)."""
     if project.exists() and not project.is_dir():
         raise UserError("output path exists and is not a folder", file=project)
-    entries = [p for p in project.iterdir()] if project.is_dir() else []
+    entries = [p for p in project.iterdir() if p.name != LOCK_NAME] if project.is_dir() else []
     if not entries:
         return
     if resume and (project / ".native").is_dir() and all(p.name in PROJECT_ENTRIES for p in entries):
@@ -129,7 +131,7 @@ def write_colmap_project(scene_dir: str | Path, project: str | Path, seed: int =
     project folder must not exist or be empty. ``move_extras`` moves calibration/ and truth/ instead of
     copying them. Returns a summary (images, cameras, points, similarity scale)."""
     scene_dir, project = Path(scene_dir), Path(project)
-    if project.exists() and any(p.name != ".native" for p in project.iterdir()):
+    if project.exists() and any(p.name not in (".native", LOCK_NAME) for p in project.iterdir()):
         raise UserError("the COLMAP project folder is not empty", file=project)
     sc = read_scene(scene_dir)
     tf = scene_dir / "transforms.json"
@@ -173,4 +175,4 @@ def _write_sidecar(project: Path, meta: dict, sc) -> None:
         side.update({k: meta[k] for k in ("sun_zenith_deg", "sun_azimuth_deg") if k in meta})
     side["frames"] = {f.name: {k: fr[k] for k in colmap_io._FRAME_KEYS if k in fr} for f, fr in zip(sc.frames, meta["frames"])}
     side["camera_positions_enu"] = {f.name: np.asarray(f.c2w)[:3, 3].tolist() for f in sc.frames}
-    (project / "spectral.json").write_text(json.dumps(side, indent=1))
+    atomic.write_text(project / "spectral.json", atomic.json_text(side, indent=1))

@@ -22,7 +22,7 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from brfgs.data.atomic import atomic_path
+from brfgs.data.atomic import atomic_path, json_text
 from brfgs.errors import UserError
 
 FORMAT = "brfgs-gaussians/1"
@@ -45,7 +45,7 @@ def save(path: str | Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path
     """Write ``tensors`` + JSON ``meta`` (with the schema version and a checksum) to ``path``
     atomically (:func:`brfgs.data.atomic.atomic_path`)."""
     clean = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
-    text = json.dumps({"schema_version": SCHEMA_VERSION, **meta})
+    text = json_text({"schema_version": SCHEMA_VERSION, **meta})
     with atomic_path(path) as tmp:
         save_file(clean, str(tmp), metadata={"format": FORMAT, "brfgs": text, "sha256": content_digest(clean, text)})
     return Path(path)

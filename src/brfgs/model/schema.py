@@ -90,12 +90,12 @@ def check_tensors(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:
 
 
 def required_tensors(meta: dict) -> list[str]:
-    """The tensors a model of ``meta``'s appearance and head cannot render without (besides the
-    geometry and the decoder): the head's latents, the roughness of a specular head, the
-    background (a checkpoint of stage 1 has no head yet: its colours' background only)."""
-    head, appearance = meta["head"], meta["appearance"]
+    """The tensors a model of ``meta``'s head cannot render without (besides the geometry and the
+    decoder): the head's latents and the roughness of a specular head (a checkpoint of stage 1 has no
+    head yet). The learned background is optional (without it the background is 0)."""
+    head = meta["head"]
     if meta.get("phase") == "stage1":
-        return ["extra.bg_colors"]
+        return []
     if head.get("kind") == "hybrid":
         comps = head.get("components") or ()
         names = [f"param.z_{c}" for c in comps] + (["param.rho_raw"] if "spec" in comps else [])
@@ -103,4 +103,4 @@ def required_tensors(meta: dict) -> list[str]:
         names = ["param.feat", "neural.net.0.weight"]
     else:
         names = ["param.sh"]
-    return names + (["extra.bg_colors"] if appearance == "cir" else ["extra.bg_latent"])
+    return names

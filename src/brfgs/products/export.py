@@ -54,6 +54,7 @@ import torch
 from plyfile import PlyData, PlyElement
 from torch import Tensor
 
+from brfgs.data.lock import releases_locks
 from brfgs.analysis.output import prepare_output_dir
 from brfgs.products.options import UP_AXES, VIEW_DEPENDENCE, VIEWER_TARGETS, ExportOptions  # noqa: F401  (re-exported)
 from brfgs.brdf.geometry import gaussian_normals
@@ -346,6 +347,7 @@ def _copy_model_file(src: Path, dst: Path) -> None:
         dst.with_name(dst.name + ".tmp").replace(dst)
 
 
+@releases_locks
 def export_model(run: str | Path, out: str | Path, opts: ExportOptions | None = None) -> dict:
     """``brfgs export``: write OUT/gaussians.ply (:func:`write_ply`), a copy of the model file that
     loads on its own (OUT/model.safetensors) and OUT/export.json; returns what export.json holds."""

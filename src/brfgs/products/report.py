@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from brfgs.data.lock import releases_locks
 from brfgs.analysis import plots
 from brfgs.products import maps as P
 from brfgs.analysis.brf import auto_roi_size
@@ -154,6 +155,7 @@ def _camera(tm: TrainedModel, opts: ProductsOptions) -> tuple[np.ndarray, Intrin
     return c2w, intr, map_grid(mf, c2w, intr, target)
 
 
+@releases_locks
 def products_report(run: str | Path, opts: ProductsOptions | None = None, out: str | Path | None = None) -> Report:
     """``brfgs products``: render the kernel products of the model of ``run`` from nadir and write
     them into ``out`` (default RUN/analysis/products)."""

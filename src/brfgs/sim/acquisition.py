@@ -32,6 +32,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from brfgs.data.lock import LOCK_NAME
 from brfgs.data import atomic
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.data.cameras import pose_from_view_angles
@@ -146,7 +147,7 @@ def _cir_png(path: Path, cube: np.ndarray, wavelengths_nm: np.ndarray) -> None:
 
 
 def _json_dump(path: Path, obj) -> None:
-    atomic.write_text(path, json.dumps(obj, indent=1, sort_keys=False) + "\n")
+    atomic.write_text(path, atomic.json_text(obj, indent=1) + "\n")
 
 
 PROGRESS_FILE = ".simulate_progress.json"
@@ -169,12 +170,12 @@ def _prepare_out(out: Path, overwrite: bool, resume: bool, cfg: SimConfig) -> li
         return list(state["done"])
     if resume and (out / "transforms.json").is_file():
         raise UserError("nothing to resume: the simulation in this folder is complete", file=out)
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and any(p.name != LOCK_NAME for p in out.iterdir()):
         if not overwrite:
             raise UserError("output folder exists and is not empty; pass --overwrite to replace the "
                             "simulation in it", file=out)
         present = [out / e for e in OUTPUT_ENTRIES if (out / e).exists()]
-        others = [p for p in out.iterdir() if p.name not in OUTPUT_ENTRIES]
+        others = [p for p in out.iterdir() if p.name not in OUTPUT_ENTRIES and p.name != LOCK_NAME]
         if not present and others:
             raise UserError("output folder holds files that a simulation does not write; refusing to "
                             "overwrite it (choose an empty or new folder)", file=out)

@@ -16,6 +16,7 @@ import shutil
 from pathlib import Path
 
 from brfgs.data import atomic
+from brfgs.data.lock import LOCK_NAME
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE
 from brfgs.train.config import TrainConfig
@@ -76,8 +77,9 @@ class RunFolder:
                             "(or choose another output folder)", file=self.out)
         if status is not None and overwrite:
             self._remove_outputs()
-        elif status is None and self.out.exists() and any(self.out.iterdir()) and not self.resume_points():
-            foreign = [p.name for p in self.out.iterdir() if p.name not in OWNED_OUTPUTS]
+        elif status is None and self.out.exists() and any(p.name != LOCK_NAME for p in self.out.iterdir()) \
+                and not self.resume_points():
+            foreign = [p.name for p in self.out.iterdir() if p.name not in OWNED_OUTPUTS and p.name != LOCK_NAME]
             if foreign:
                 raise UserError(f"output folder is not empty and is not a brfgs run (contains {foreign[:5]}); "
                                 "choose an empty or new folder", file=self.out)

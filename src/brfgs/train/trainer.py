@@ -31,6 +31,7 @@ import torch
 from tqdm import tqdm
 
 from brfgs.data import read_scene
+from brfgs.data.lock import folder_lock
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
@@ -403,8 +404,13 @@ def train(scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False, progre
           from_stage1=None, log=print, comm: Comm | None = None) -> Path:
     """Train a model on ``scene_path`` into ``out_dir`` (resumes an unfinished run); returns model.safetensors.
     ``comm``: this process's rank of a data-parallel run (default: one process)."""
-    return Trainer(scene_path, out_dir, cfg, overwrite=overwrite, progress=progress, callback=callback,
-                   from_stage1=from_stage1, log=log, comm=comm).run()
+    trainer = Trainer(scene_path, out_dir, cfg, overwrite=overwrite, progress=progress, callback=callback,
+                      from_stage1=from_stage1, log=log, comm=comm)
+    if not trainer.comm.is_main:
+        return trainer.run()
+    check_outside(Path(out_dir), Path(scene_path))  # before the lock creates the folder
+    with folder_lock(Path(out_dir), "brfgs train"):  # one writer: the finished check and the run under it
+        return trainer.run()
 
 
 def train_rank(comm: Comm, scene_path, out_dir, cfg: TrainConfig, overwrite: bool, from_stage1, quiet: bool) -> None:
