@@ -88,3 +88,44 @@ def test_json_files_never_hold_a_nan_token(tmp_path):
     back = json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
     assert back == {"a": None, "b": [1.0, None, None], "c": None, "d": 2.5, "e": [1, 2], "f": {"g": None}, "h": "NaN"}
     assert math.isfinite(back["d"])
+
+
+def _disk_full_while_writing(monkeypatch, module, name: str):
+    """A writer that fails with ENOSPC and no file name (as PIL and numpy do) while writing."""
+    def fail(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(module, name, fail)
+
+
+def test_a_writer_without_a_file_name_is_named_by_the_path(run, tmp_path, monkeypatch, capsys):
+    import numpy as np
+
+    _disk_full_while_writing(monkeypatch, np, "save")
+    out = tmp_path / "r"
+    assert main(["render", str(run), "--view-zenith", "10", "--view-azimuth", "0", "-o", str(out), "-q"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "(unknown path)" not in err and str(out) in err and ".npy" in err
+    assert _partials(out) == []
+
+
+@pytest.mark.parametrize("free_mib", [0.3, 1.5, 2.5])
+def test_a_disk_too_full_for_the_colmap_database_is_exit_3_before_colmap_starts(scene, tmp_path, monkeypatch,
+                                                                                 capsys, free_mib):
+    """COLMAP aborts the process when SQLite runs out of space mid-write: brfgs measures the free space
+    first, says which file does not fit, leaves no database behind, and a rerun with space finishes."""
+    import shutil
+
+    from brfgs.init import api
+
+    real = shutil.disk_usage
+    monkeypatch.setattr(api.shutil, "disk_usage", lambda p: real(p)._replace(free=int(free_mib * 2**20)))
+    out = tmp_path / "run"
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--threads", "1", "--stage1-steps", "4",
+                 "--stage2-steps", "2", "--quiet", "--no-evaluate"]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "database.db" in err and "free" in err
+    assert not list(out.rglob("database.db*")) and _partials(out) == []
+    monkeypatch.undo()
+    assert main(["train", str(scene), str(out), "--preset", "tiny", "--threads", "1", "--stage1-steps", "4",
+                 "--stage2-steps", "2", "--quiet", "--no-evaluate"]) == 0

@@ -23,6 +23,7 @@ then fails it falls back to the nominal poses (recorded in the report).
 
 from __future__ import annotations
 
+import errno
 import json
 import shutil
 import tempfile
@@ -197,11 +198,35 @@ def match_features(scene, feats, work_dir: Path, config: InitConfig, guided: boo
 
     work_dir.mkdir(parents=True, exist_ok=True)
     db_path = work_dir / "database.db"
+    check_database_space(db_path, feats)
     names = [f.name for f in scene.frames]
-    ids = C.write_database(db_path, scene.intrinsics, names, feats)
-    C.match_exhaustive(db_path, num_threads=config.match_threads, seed=config.seed, min_inliers=config.min_inliers,
-                       guided=guided)
-    return db_path, ids, C.match_stats(db_path, ids)
+    try:
+        ids = C.write_database(db_path, scene.intrinsics, names, feats)
+        C.match_exhaustive(db_path, num_threads=config.match_threads, seed=config.seed,
+                           min_inliers=config.min_inliers, guided=guided)
+        return db_path, ids, C.match_stats(db_path, ids)
+    except RuntimeError as exc:  # COLMAP's SQLite errors come back as RuntimeError
+        if "full" in str(exc).lower() or "disk i/o" in str(exc).lower():
+            raise OSError(errno.ENOSPC, "no space left for the COLMAP database", str(db_path)) from None
+        raise
+
+
+def database_bytes(feats) -> int:
+    """A generous estimate of the COLMAP database's size for the features ``feats`` (keypoints and
+    descriptors, every view pair's matches and two-view geometry, SQLite's overhead)."""
+    n = [len(f.xy) for f in feats]
+    pairs = sum(min(a, b) for i, a in enumerate(n) for b in n[i + 1:])
+    return int(2 * (sum(n) * (128 + 24) + pairs * 8 * 3) + 4 * 2**20)
+
+
+def check_database_space(db_path: Path, feats) -> None:
+    """OSError (ENOSPC, naming the database) when the file system of ``db_path`` has less free space
+    than the database needs: COLMAP aborts the process when SQLite runs out of space mid-write, so the
+    shortage is found before it starts."""
+    need, free = database_bytes(feats), shutil.disk_usage(db_path.parent).free
+    if free < need:
+        raise OSError(errno.ENOSPC, f"not enough free space for the COLMAP database (needs about {need / 2**20:.1f} "
+                      f"MiB, {free / 2**20:.1f} MiB free)", str(db_path))
 
 
 def _sfm_failure(scene, stats, registered_names: list[str], reason: str) -> UserError:
