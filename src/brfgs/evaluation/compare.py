@@ -1,7 +1,7 @@
 """Paired comparison of two models on the same held-out views, with a bootstrap over the views.
 
-Issue 15 asks for margins between models (BRF-GS against SH-3: ≥ 1 dB CIR PSNR, ≤ 0.75× SAM) that
-are decided on a handful of held-out views (7 test views of a 49-view flight, 2 of them at 58°).
+Margins between models (e.g. BRF-GS against SH-3 in CIR PSNR and SAM) are often decided on a handful
+of held-out views (7 test views of a 49-view flight, 2 of them at 58°).
 ``brfgs compare A B`` reads the per-view scores that ``brfgs evaluate`` wrote for both runs
 (docs/data-format.md, ``metrics.json``) and reports, overall and per view ring:
 

@@ -1,7 +1,7 @@
 """A setting compared over several scenes at once: per-scene margins and their mean over scenes.
 
-Issue 15 asks for defaults chosen over several scenes at once ("one default preset for all of them,
-not per-scene tuning"). ``brfgs compare A1,A2,... B1,B2,... --scenes`` pairs the runs by position, one
+A default is chosen over several scenes at once (one default for all of them, not per-scene
+tuning). ``brfgs compare A1,A2,... B1,B2,... --scenes`` pairs the runs by position, one
 pair per scene (A_i and B_i trained on scene i with the same split), and reports:
 
 - each scene's PSNR margin and SAM ratio with its paired-bootstrap interval

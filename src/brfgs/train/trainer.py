@@ -75,11 +75,11 @@ class Trainer:
         self.phases = run_plan(cfg)
         self.scene = None
         self.images: TrainImages | None = None
-        self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this session
+        self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this process
         self._ctrl_c = False  # Ctrl-C seen by this process (see _steps_finish_on_ctrl_c)
         self._aborted = False  # a second Ctrl-C stopped a step half done: its state is not saved
         self._stop_requested = False  # ... by any rank, agreed at the end of the last step
-        self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this session
+        self.comm_totals: dict[str, list[int]] = {}  # phase -> [all-reduced bytes, steps] of this process
         self.schedule: dict | None = None  # the schedule scaled to the training views (set when the scene is read)
 
     # -------------------------------------------------------------------------------- entry
