@@ -125,21 +125,23 @@ def pose_matrix(pose: tuple[float, ...], where: Path, field: str) -> np.ndarray:
     return np.concatenate([r, np.asarray(pose[4:], float)[:, None]], 1)
 
 
-def decode_name(raw: bytes, where: Path, field: str) -> str:
-    """An image name from its bytes: UTF-8, not empty, no control characters, at most MAX_NAME_BYTES in
-    all and MAX_COMPONENT_BYTES per '/'-separated component."""
+def decode_name(raw: bytes, where: Path, field: str, at: int | None = None) -> str:
+    """An image name from its bytes (at byte ``at`` of a binary file): UTF-8, not empty, no control
+    characters, at most MAX_NAME_BYTES in all and MAX_COMPONENT_BYTES per '/'-separated component."""
+    def fail(message: str):
+        raise UserError(message if at is None else f"at byte {at}: {message}", file=where, field=field)
+
     if len(raw) > MAX_NAME_BYTES:
-        raise UserError(f"image name of {len(raw)} bytes (at most {MAX_NAME_BYTES})", file=where, field=field)
+        fail(f"image name of {len(raw)} bytes (at most {MAX_NAME_BYTES})")
     try:
         name = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise UserError(f"image name is not UTF-8 (byte {exc.start} of the name)", file=where, field=field) from None
+        fail(f"image name is not UTF-8 (byte {exc.start} of the name)")
     if not name.strip() or any(ord(c) < 32 or ord(c) == 127 for c in name):
-        raise UserError(f"image name {name!r} is empty or holds control characters", file=where, field=field)
+        fail(f"image name {name[:40]!r} is empty or holds control characters")
     longest = max(len(p.encode()) for p in name.split("/"))
     if longest > MAX_COMPONENT_BYTES:
-        raise UserError(f"image name {name[:40]!r}... has a component of {longest} bytes (at most "
-                        f"{MAX_COMPONENT_BYTES})", file=where, field=field)
+        fail(f"image name {name[:40]!r}... has a component of {longest} bytes (at most {MAX_COMPONENT_BYTES})")
     return name
 
 

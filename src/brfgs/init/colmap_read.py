@@ -118,7 +118,8 @@ def _images(cur: _Cursor) -> list[RawImage]:
     out = []
     for _ in range(cur.count(_U64, _IMAGE.size + 1 + _U64.size, "images")):
         iid, *pose, cid = cur.read(_IMAGE, "an image record")
-        name = decode_name(cur.cstring(f"the name of image {iid}"), cur.path, f"image {iid}")
+        at = cur.pos
+        name = decode_name(cur.cstring(f"the name of image {iid}"), cur.path, f"image {iid}", at)
         (n2d,) = cur.read(_U64, f"the number of 2D points of image {name!r}")
         cur.skip(n2d * _POINT2D, f"the {n2d} 2D points of image {name!r}")
         out.append(RawImage(iid, name, cid, tuple(pose)))
@@ -209,4 +210,4 @@ def read_model(path: Path) -> Model:
                "rigs": _walk(files["rigs"], _rigs) if "rigs" in files else None,
                "frames": _walk(files["frames"], _frames) if "frames" in files else None}
     return assemble(Path(path), layout, rec["cameras"], rec["images"], rec["rigs"], rec["frames"], rec["points3D"],
-                    {k: files.get(k, Path(path) / f"{k}.bin") for k in KINDS})
+                    files)
