@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Cam", "Img", "Pt", "TINY", "write_bin", "write_txt", "make_project", "run_import"]
+__all__ = ["Cam", "Img", "Pt", "TINY", "write_bin", "write_txt", "make_project", "run_import", "import_error"]
 
 
 @dataclass(frozen=True)
@@ -127,3 +127,17 @@ def run_import(root: Path, capsys, *extra: str) -> tuple[int, str]:
 
     rc = main(["import", "colmap", str(root), "--overwrite", *extra])
     return rc, capsys.readouterr().err.strip()
+
+
+def import_error(root: Path) -> str | None:
+    """What `brfgs import colmap ROOT --overwrite` would print after "brfgs: error: " (None: it succeeds),
+    through the library call (the command line's own start-up costs ~40 ms a call; tests that sweep
+    hundreds of files use this, and run_import on a sample)."""
+    from brfgs.errors import UserError
+    from brfgs.init.colmap_io import import_colmap
+
+    try:
+        import_colmap(root, root / "sparse" / "0", root / "images", None, overwrite=True)
+    except UserError as exc:
+        return str(exc)
+    return None

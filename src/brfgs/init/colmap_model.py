@@ -22,16 +22,20 @@ from brfgs.errors import UserError
 __all__ = ["CAMERA_MODELS", "MODEL_IDS", "Camera", "Image", "Model", "RawImage", "Rig", "Frame", "assemble",
            "check_camera", "decode_name", "pose_matrix", "MAX_SIDE", "MAX_NAME_BYTES", "MAX_COMPONENT_BYTES"]
 
-# COLMAP's camera models: id -> (name, number of parameters, indices of the focal lengths among them).
-CAMERA_MODELS = {
-    0: ("SIMPLE_PINHOLE", 3, (0,)), 1: ("PINHOLE", 4, (0, 1)), 2: ("SIMPLE_RADIAL", 4, (0,)),
-    3: ("RADIAL", 5, (0,)), 4: ("OPENCV", 8, (0, 1)), 5: ("OPENCV_FISHEYE", 8, (0, 1)),
-    6: ("FULL_OPENCV", 12, (0, 1)), 7: ("FOV", 5, (0, 1)), 8: ("SIMPLE_RADIAL_FISHEYE", 4, (0,)),
-    9: ("RADIAL_FISHEYE", 5, (0,)), 10: ("THIN_PRISM_FISHEYE", 12, (0, 1)),
-    11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16, (0, 1)), 12: ("SIMPLE_DIVISION", 4, (0,)), 13: ("DIVISION", 5, (0, 1)),
-    14: ("SIMPLE_FISHEYE", 3, (0,)), 15: ("FISHEYE", 4, (0, 1)), 16: ("EUCM", 6, (0, 1)),
-    17: ("EQUIRECTANGULAR", 2, ()),
+# COLMAP's camera models: id -> (name, names of its parameters).
+_MODELS = {
+    0: ("SIMPLE_PINHOLE", "f cx cy"), 1: ("PINHOLE", "fx fy cx cy"), 2: ("SIMPLE_RADIAL", "f cx cy k"),
+    3: ("RADIAL", "f cx cy k1 k2"), 4: ("OPENCV", "fx fy cx cy k1 k2 p1 p2"),
+    5: ("OPENCV_FISHEYE", "fx fy cx cy k1 k2 k3 k4"), 6: ("FULL_OPENCV", "fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6"),
+    7: ("FOV", "fx fy cx cy omega"), 8: ("SIMPLE_RADIAL_FISHEYE", "f cx cy k"), 9: ("RADIAL_FISHEYE", "f cx cy k1 k2"),
+    10: ("THIN_PRISM_FISHEYE", "fx fy cx cy k1 k2 p1 p2 k3 k4 sx1 sy1"),
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", "fx fy cx cy k0 k1 k2 k3 k4 k5 p0 p1 s0 s1 s2 s3"),
+    12: ("SIMPLE_DIVISION", "f cx cy k"), 13: ("DIVISION", "fx fy cx cy k"), 14: ("SIMPLE_FISHEYE", "f cx cy"),
+    15: ("FISHEYE", "fx fy cx cy"), 16: ("EUCM", "fx fy cx cy alpha beta"), 17: ("EQUIRECTANGULAR", "w h"),
 }
+# id -> (name, parameter names, indices of the focal lengths among them)
+CAMERA_MODELS = {mid: (name, tuple(p.split()), tuple(k for k, v in enumerate(p.split()) if v in ("f", "fx", "fy")))
+                 for mid, (name, p) in _MODELS.items()}
 MODEL_IDS = {name: mid for mid, (name, _, _) in CAMERA_MODELS.items()}
 
 MAX_SIDE = 65_535            # pixels, width and height
@@ -98,14 +102,15 @@ def check_camera(cam: Camera, where: Path) -> Camera:
     for side, v in (("width", cam.width), ("height", cam.height)):
         if not 1 <= v <= MAX_SIDE:
             raise UserError(f"{side} {v} pixels is outside 1..{MAX_SIDE}", file=where, field=field)
+    names = CAMERA_MODELS[MODEL_IDS[cam.model]][1]
     bad = [k for k, v in enumerate(cam.params) if not math.isfinite(v)]
     if bad:
-        raise UserError(f"parameter {bad[0]} of {cam.model} is {cam.params[bad[0]]} (must be finite)", file=where,
+        raise UserError(f"{cam.model} parameter {names[bad[0]]} is {cam.params[bad[0]]} (must be finite)", file=where,
                         field=field)
     focal = CAMERA_MODELS[MODEL_IDS[cam.model]][2]
-    if any(cam.params[k] <= 0 for k in focal):
-        raise UserError(f"focal length {min(cam.params[k] for k in focal)} pixels (must be > 0)", file=where,
-                        field=field)
+    for k in focal:
+        if cam.params[k] <= 0:
+            raise UserError(f"focal length {names[k]} = {cam.params[k]} pixels (must be > 0)", file=where, field=field)
     return cam
 
 
@@ -175,11 +180,12 @@ def _rig_poses(images: list[RawImage], rigs: list[Rig], frames: list[Frame], fil
         for stype, sid, did in fr.data:
             if stype == SENSOR_CAMERA:
                 if did in frame_of:
-                    raise UserError(f"image {did} is in two frames", file=files["frames"], field=f"frame {fr.frame_id}")
+                    raise UserError(f"image id {did} is in two frames", file=files["frames"],
+                                    field=f"frame {fr.frame_id}")
                 frame_of[did] = (fr, sid)
     poses = {}
     for im in images:
-        field = f"image {im.name!r}"
+        field = f"image {im.name}"
         if im.image_id not in frame_of:
             raise UserError(f"image id {im.image_id} is in no frame of {files['frames'].name}", file=files["images"],
                             field=field)
@@ -205,21 +211,22 @@ def assemble(path: Path, layout: str, cameras: list[Camera], images: list[RawIma
     for cam in cams.values():
         check_camera(cam, files["cameras"])
     _unique(images, lambda im: im.image_id, "image id {}".format, files["images"])
-    _unique(images, lambda im: im.name, "image {!r}".format, files["images"])
+    _unique(images, lambda im: im.name, "image {}".format, files["images"])
     stems = {}
     for im in images:
-        stem = PurePosixPath(im.name).stem
-        if stem in ("", ".", ".."):
-            raise UserError(f"image name {im.name!r} has no file stem (the stem names the cube)", file=files["images"],
-                            field=f"image {im.name!r}")
+        last = im.name.rsplit("/", 1)[-1]
+        if last in ("", ".", ".."):
+            raise UserError(f"image name {im.name!r} does not end in a file name (its stem names the cube)",
+                            file=files["images"], field=f"image {im.name}")
+        stem = PurePosixPath(last).stem
         if stem in stems:
             raise UserError(f"images {stems[stem]!r} and {im.name!r} share the file stem {stem!r} (the stem names "
-                            "the cube)", file=files["images"], field=f"image {im.name!r}")
+                            "the cube)", file=files["images"], field=f"image {im.name}")
         stems[stem] = im.name
         if im.camera_id not in cams:
             raise UserError(f"camera {im.camera_id} is not in {files['cameras'].name}", file=files["images"],
-                            field=f"image {im.name!r}")
-    own = {im.image_id: pose_matrix(im.pose, files["images"], f"image {im.name!r}") for im in images}
+                            field=f"image {im.name}")
+    own = {im.image_id: pose_matrix(im.pose, files["images"], f"image {im.name}") for im in images}
     poses = own if rigs is None else _rig_poses(images, rigs, frames, files)
     out = [Image(im.image_id, im.name, im.camera_id, poses[im.image_id]) for im in images]
     return Model(Path(path), layout, cams, sorted(out, key=lambda im: im.name), n_points, dict(files))

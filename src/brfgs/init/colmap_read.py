@@ -51,7 +51,7 @@ class _Cursor:
 
     def need(self, n: int, what: str) -> None:
         if n > self.size - self.pos:
-            raise UserError(f"truncated or corrupt at byte {self.pos}: {what} needs {n} bytes, the file has "
+            raise UserError(f"truncated or corrupt at byte {self.pos}: {n} bytes needed for {what}, the file has "
                             f"{self.size - self.pos} left (of {self.size})", file=self.path)
 
     def read(self, fmt: struct.Struct, what: str) -> tuple:
@@ -108,7 +108,7 @@ def _cameras(cur: _Cursor) -> list[Camera]:
         cid, mid, w, h = cur.read(_CAMERA, "a camera record")
         if mid not in CAMERA_MODELS:
             raise UserError(f"at byte {at}: unknown camera model id {mid}", file=cur.path, field=f"camera {cid}")
-        name, n, _ = CAMERA_MODELS[mid]
+        name, n = CAMERA_MODELS[mid][0], len(CAMERA_MODELS[mid][1])
         params = cur.read(struct.Struct(f"<{n}d"), f"the {n} parameters of camera {cid} ({name})")
         out.append(Camera(cid, name, w, h, params))
     return out
@@ -119,7 +119,7 @@ def _images(cur: _Cursor) -> list[RawImage]:
     for _ in range(cur.count(_U64, _IMAGE.size + 1 + _U64.size, "images")):
         iid, *pose, cid = cur.read(_IMAGE, "an image record")
         at = cur.pos
-        name = decode_name(cur.cstring(f"the name of image {iid}"), cur.path, f"image {iid}", at)
+        name = decode_name(cur.cstring(f"the name of image id {iid}"), cur.path, f"image id {iid}", at)
         (n2d,) = cur.read(_U64, f"the number of 2D points of image {name!r}")
         cur.skip(n2d * _POINT2D, f"the {n2d} 2D points of image {name!r}")
         out.append(RawImage(iid, name, cid, tuple(pose)))

@@ -90,7 +90,7 @@ def _cameras(path: Path) -> list[Camera]:
         if model not in MODEL_IDS:
             ln.fail(f"unknown camera model {model[:40]!r}")
         w, h = ln.int("the width"), ln.int("the height")
-        n = CAMERA_MODELS[MODEL_IDS[model]][1]
+        n = len(CAMERA_MODELS[MODEL_IDS[model]][1])
         if len(ln.tokens) - ln.k != n:
             ln.fail(f"{model} has {n} parameters, the line {len(ln.tokens) - ln.k}")
         out.append(Camera(cid, model, w, h, ln.floats(n, "a parameter")))
@@ -107,14 +107,14 @@ def _images(path: Path) -> list[RawImage]:
             parts = raw.split(maxsplit=9)
             ln = _Line(path, no, parts[:9])
             iid = ln.int("the image id")
-            ln.field = f"image {iid}"
+            ln.field = f"image id {iid}"
             pose, cid = ln.floats(7, "a pose value"), ln.int("the camera id")
             if len(parts) < 10:
                 ln.fail("ends before the image name")
-            head = RawImage(iid, decode_name(parts[9].strip(), path, f"image {iid}"), cid, pose)
+            head = RawImage(iid, decode_name(parts[9].strip(), path, f"image id {iid}"), cid, pose)
             continue
         if len(raw.split()) % 3:
-            _Line(path, no, [], f"image {head.name!r}").fail("2D points are not (x, y, point3D_id) triples")
+            _Line(path, no, [], f"image {head.name}").fail("2D points are not (x, y, point3D_id) triples")
         out.append(head)
         head = None
     return out + ([head] if head is not None else [])
