@@ -69,9 +69,9 @@ def test_an_impossible_value_is_refused_naming_the_file_and_the_record(tmp_path,
 
 @pytest.mark.parametrize("fmt", ["bin", "txt"])
 def test_the_tiny_model_with_other_values_imports(tmp_path, capsys, fmt):
-    """A non-unit quaternion is normalised (the same pose as the unit one); a principal point outside the
+    """A non-unit quaternion is normalised (the same pose as the unit one, even at 1e307); a principal point outside the
     image, a 65,535-pixel side and a name in a sub-folder with UTF-8 letters are possible."""
-    rec = TINY.with_image(0, pose=(*(2.5 * np.asarray(Q0[:4])), *Q0[4:]), name="sub/vü0.png".encode())
+    rec = TINY.with_image(0, pose=(*(1e307 * np.asarray(Q0[:4])), *Q0[4:]), name="sub/vü0.png".encode())
     rec = rec.with_camera(params=(30.0, 31.0, -5.0, 80.0), width=65535)
     root = make_project(tmp_path / "p", rec, fmt)
     assert run_import(root, capsys) == (0, "")
@@ -81,6 +81,14 @@ def test_the_tiny_model_with_other_values_imports(tmp_path, capsys, fmt):
     np.testing.assert_allclose(read_model(root / "sparse" / "0").images[0].cam_from_world,
                                read_model(make_project(tmp_path / "q", TINY, fmt) / "sparse" / "0").images[0]
                                .cam_from_world, atol=1e-15)
+
+
+def test_a_position_beyond_float_range_after_the_alignment_is_refused(tmp_path, capsys):
+    root = make_project(tmp_path / "p", TINY.with_image(0, pose=(*Q0[:4], 1e308, 0.0, -1e308)))
+    (root / "side.json").write_text(json.dumps({"enu_from_colmap": np.diag([10.0, 10.0, 10.0, 1.0]).tolist()}))
+    rc, err = run_import(root, capsys, "--sidecar", str(root / "side.json"))
+    assert rc == 2 and "images.bin" in err and "image v0.png" in err and "out of range" in err, err
+    assert run_import(make_project(tmp_path / "q", TINY), capsys, "--sidecar", str(root / "side.json")) == (0, "")
 
 
 def test_text_lines_that_do_not_parse(tmp_path, capsys):

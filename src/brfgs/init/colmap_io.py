@@ -11,6 +11,12 @@ per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azi
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
 by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
 
+The model is read by brfgs's own reader (:mod:`brfgs.init.colmap_read`: the three- and five-file
+layouts, binary or text, in bounded time and memory); a cut or corrupted file, an impossible value
+(focal length, image size, pose, quaternion) and a repeated, non-UTF-8 or over-long image name are
+refused in one line naming the file and the camera or image (:mod:`brfgs.init.colmap_model`). Image
+names must have unique stems: the stem names the cube.
+
 Cameras: PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL, RADIAL and FULL_OPENCV (with k3..k6 = 0)
 map to transforms.json's PINHOLE / OPENCV keys (COLMAP's pixel centres are at +0.5, as brfgs's); every other
 model is refused in one line naming it. The first image's camera is the
@@ -172,7 +178,11 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
         cube = _find_cube(images, stem, sparse)
         enu = np.eye(4)
         enu[:3, :3] = r @ m[:3, :3]
-        enu[:3, 3] = s * r @ m[:3, 3] + t
+        with np.errstate(over="ignore", invalid="ignore"):                 # refused just below
+            enu[:3, 3] = s * r @ m[:3, 3] + t
+        if not np.isfinite(enu).all():
+            raise UserError("the camera position is out of range after the alignment to ENU", file=model.files["images"],
+                            field=f"image {im.name}")
         fr = {"file_path": cube.resolve().relative_to(project.resolve()).as_posix(), "transform_matrix": enu.tolist(),
               "colmap_image_id": int(im.image_id)}
         own = _camera_keys(model.cameras[im.camera_id], model.files["cameras"])

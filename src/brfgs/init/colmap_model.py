@@ -120,10 +120,12 @@ def pose_matrix(pose: tuple[float, ...], where: Path, field: str) -> np.ndarray:
     if not all(math.isfinite(v) for v in pose):
         raise UserError(f"pose (qw qx qy qz tx ty tz) {' '.join(repr(v) for v in pose)} is not finite", file=where,
                         field=field)
-    norm = math.hypot(*pose[:4])
-    if not norm > 0 or not math.isfinite(norm):
+    top = max(abs(v) for v in pose[:4])
+    if top == 0:
         raise UserError("the pose quaternion (qw qx qy qz) is zero", file=where, field=field)
-    w, x, y, z = (v / norm for v in pose[:4])
+    q = [v / top for v in pose[:4]]                                     # no overflow or underflow in the norm
+    norm = math.hypot(*q)
+    w, x, y, z = (v / norm for v in q)
     r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                   [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
                   [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
