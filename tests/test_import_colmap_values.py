@@ -83,7 +83,14 @@ def test_the_tiny_model_with_other_values_imports(tmp_path, capsys, fmt):
                                .cam_from_world, atol=1e-15)
 
 
-def test_a_position_beyond_float_range_after_the_alignment_is_refused(tmp_path, capsys):
+def test_a_position_beyond_float_range_is_refused(tmp_path, capsys):
+    """Finite poses whose camera position (-R^T t) or its alignment to ENU overflows."""
+    n = np.ones(3) / np.sqrt(3)                                          # R maps z to n: R^T t = |t| z
+    axis, half = np.cross([0.0, 0.0, 1.0], n), np.arccos(n[2]) / 2
+    q = (np.cos(half), *(np.sin(half) * axis / np.linalg.norm(axis)))
+    root = make_project(tmp_path / "o", TINY.with_image(1, pose=(*q, 1.7e308, 1.7e308, 1.7e308)))
+    rc, err = run_import(root, capsys)
+    assert rc == 2 and "images.bin" in err and "image v1.png" in err and "out of range" in err, err
     root = make_project(tmp_path / "p", TINY.with_image(0, pose=(*Q0[:4], 1e308, 0.0, -1e308)))
     (root / "side.json").write_text(json.dumps({"enu_from_colmap": np.diag([10.0, 10.0, 10.0, 1.0]).tolist()}))
     rc, err = run_import(root, capsys, "--sidecar", str(root / "side.json"))

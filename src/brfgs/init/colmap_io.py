@@ -170,7 +170,10 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
     for im in regs:
         w2c = np.eye(4)
         w2c[:3, :] = im.cam_from_world
-        c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
+        with np.errstate(over="ignore", invalid="ignore"):                 # refused just below
+            c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
+        if not np.isfinite(c2w[-1]).all():
+            raise UserError("the camera position is out of range", file=model.files["images"], field=f"image {im.name}")
     s, r, t, how = _similarity(sidecar, stems, c2w, Path(sidecar_path) if sidecar_path else sparse)
     top = _camera_keys(model.cameras[regs[0].camera_id], model.files["cameras"])
     frames = []
