@@ -33,9 +33,7 @@ def colmap_cmd(
     if sidecar is None and (project / "spectral.json").is_file():
         sidecar = project / "spectral.json"
     tf, info = import_colmap(project, sparse, images, sidecar, overwrite=o.overwrite)
-    typer.echo(f"wrote {tf}: {info['frames']} frames, {info['cameras']} camera(s), alignment: {info['alignment']}"
-               + (f"; {info['skipped_unregistered']} unregistered image(s) left out" if info["skipped_unregistered"]
-                  else ""))
+    typer.echo(f"wrote {tf}: {info['frames']} frames, {info['cameras']} camera(s), alignment: {info['alignment']}")
 
 
 def register(app: typer.Typer) -> None:

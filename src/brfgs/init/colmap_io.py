@@ -11,6 +11,12 @@ per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azi
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
 by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
 
+The model is read by brfgs's own reader (:mod:`brfgs.init.colmap_read`: the three- and five-file
+layouts, binary or text, in bounded time and memory); a cut or corrupted file, an impossible value
+(focal length, image size, pose, quaternion) and a repeated, non-UTF-8 or over-long image name are
+refused in one line naming the file and the camera or image (:mod:`brfgs.init.colmap_model`). Image
+names must have unique stems: the stem names the cube.
+
 Cameras: PINHOLE, SIMPLE_PINHOLE, OPENCV, SIMPLE_RADIAL, RADIAL and FULL_OPENCV (with k3..k6 = 0)
 map to transforms.json's PINHOLE / OPENCV keys (COLMAP's pixel centres are at +0.5, as brfgs's); every other
 model is refused in one line naming it. The first image's camera is the
@@ -25,7 +31,7 @@ from __future__ import annotations
 
 import zlib  # noqa: F401  (must precede pycolmap; see brfgs.init.colmap)
 import json
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
@@ -34,6 +40,8 @@ import pycolmap
 from brfgs.data import atomic
 from brfgs.data.cameras import GL_TO_CV
 from brfgs.errors import UserError
+from brfgs.init.colmap_model import MAX_COMPONENT_BYTES, Camera
+from brfgs.init.colmap_read import read_model
 
 __all__ = ["CUBE_SUFFIXES", "read_colmap_model", "import_colmap", "write_colmap_model"]
 
@@ -43,10 +51,10 @@ _SIDECAR_KEYS = ("wavelengths_nm", "fwhm_nm", "sun_zenith_deg", "sun_azimuth_deg
 
 
 def read_colmap_model(path: Path):
-    """pycolmap.Reconstruction of a sparse model folder (cameras/images/points3D .bin or .txt)."""
-    path = Path(path)
-    if not any((path / f"cameras{ext}").is_file() for ext in (".bin", ".txt")):
-        raise UserError("not a COLMAP sparse model (no cameras.bin or cameras.txt)", file=path)
+    """pycolmap.Reconstruction of a sparse model folder (binary or text, three- or five-file layout),
+    checked first by brfgs's own reader (:func:`brfgs.init.colmap_read.read_model`), so that a damaged
+    model is refused in one line instead of reaching pycolmap's reader."""
+    read_model(path)
     try:
         return pycolmap.Reconstruction(str(path))
     except Exception as exc:  # pycolmap raises RuntimeError/ValueError with COLMAP's message
@@ -64,11 +72,11 @@ _OPENCV_MODELS = {"SIMPLE_RADIAL": lambda p: (p[0], p[0], p[1], p[2], p[3], 0.0,
 SUPPORTED_CAMERA_MODELS = tuple(_PINHOLE_MODELS) + tuple(_OPENCV_MODELS)
 
 
-def _camera_keys(cam, where: Path) -> dict:
-    """transforms.json camera keys of a pycolmap camera; UserError naming the model and the camera for a
-    model brfgs cannot represent exactly."""
-    name, p = cam.model.name, [float(v) for v in cam.params]
-    keys = {"w": int(cam.width), "h": int(cam.height)}
+def _camera_keys(cam: Camera, where: Path) -> dict:
+    """transforms.json camera keys of a (checked) COLMAP camera; UserError naming the model and the camera
+    for a model brfgs cannot represent exactly."""
+    name, p = cam.model, list(cam.params)
+    keys = {"w": cam.width, "h": cam.height}
     field = f"camera {cam.camera_id}"
     if name not in SUPPORTED_CAMERA_MODELS or (name == "FULL_OPENCV" and any(p[8:])):
         extra = " with k3..k6 not 0" if name == "FULL_OPENCV" else ""
@@ -84,7 +92,7 @@ def _camera_keys(cam, where: Path) -> dict:
 
 def _find_cube(images: Path, stem: str, where: Path) -> Path:
     for suffix in CUBE_SUFFIXES:
-        if (images / f"{stem}{suffix}").is_file():
+        if len(f"{stem}{suffix}".encode()) <= MAX_COMPONENT_BYTES and (images / f"{stem}{suffix}").is_file():
             return images / f"{stem}{suffix}"
     raise UserError(f"no cube {stem}{{{','.join(CUBE_SUFFIXES)}}} in {images} for COLMAP image {stem!r}", file=where)
 
@@ -153,35 +161,41 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
             raise UserError(f"not a readable JSON sidecar ({exc})", file=sidecar_path) from None
         if not isinstance(sidecar, dict):
             raise UserError("expected a JSON object", file=sidecar_path)
-    rec = read_colmap_model(sparse)
-    regs = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
+    model = read_model(sparse)
+    regs = model.images
     if not regs:
         raise UserError("the COLMAP model has no registered image", file=sparse)
-    stems = [Path(im.name).stem for im in regs]
+    stems = [PurePosixPath(im.name).stem for im in regs]
     c2w = []
     for im in regs:
         w2c = np.eye(4)
-        w2c[:3, :] = im.cam_from_world().matrix()
-        c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
+        w2c[:3, :] = im.cam_from_world
+        with np.errstate(over="ignore", invalid="ignore"):                 # refused just below
+            c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
+        if not np.isfinite(c2w[-1]).all():
+            raise UserError("the camera position is out of range", file=model.files["images"], field=f"image {im.name}")
     s, r, t, how = _similarity(sidecar, stems, c2w, Path(sidecar_path) if sidecar_path else sparse)
-    top = _camera_keys(rec.cameras[regs[0].camera_id], sparse)
+    top = _camera_keys(model.cameras[regs[0].camera_id], model.files["cameras"])
     frames = []
     for im, stem, m in zip(regs, stems, c2w):
         cube = _find_cube(images, stem, sparse)
         enu = np.eye(4)
         enu[:3, :3] = r @ m[:3, :3]
-        enu[:3, 3] = s * r @ m[:3, 3] + t
+        with np.errstate(over="ignore", invalid="ignore"):                 # refused just below
+            enu[:3, 3] = s * r @ m[:3, 3] + t
+        if not np.isfinite(enu).all():
+            raise UserError("the camera position is out of range after the alignment to ENU", file=model.files["images"],
+                            field=f"image {im.name}")
         fr = {"file_path": cube.resolve().relative_to(project.resolve()).as_posix(), "transform_matrix": enu.tolist(),
               "colmap_image_id": int(im.image_id)}
-        own = _camera_keys(rec.cameras[im.camera_id], sparse)
+        own = _camera_keys(model.cameras[im.camera_id], model.files["cameras"])
         fr.update({k: v for k, v in own.items() if top.get(k) != v})
         fr.update(_frame_extras(sidecar, stem, Path(sidecar_path) if sidecar_path else sparse))
         frames.append(fr)
     meta = {**top, **{k: sidecar[k] for k in _SIDECAR_KEYS if k in sidecar}, "frames": frames,
             "colmap": {"model": str(Path(sparse).resolve()), "enu_from_colmap": how, "scale": s}}
     atomic.write_json(tf, meta)
-    return tf, {"frames": len(frames), "cameras": len({im.camera_id for im in regs}), "alignment": how,
-                "skipped_unregistered": len(rec.images) - len(regs)}
+    return tf, {"frames": len(frames), "cameras": len({im.camera_id for im in regs}), "alignment": how}
 
 
 def write_colmap_model(out: Path, intr, names: list[str], c2w_gl: np.ndarray, registered: np.ndarray,
