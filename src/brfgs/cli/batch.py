@@ -36,8 +36,10 @@ def register(app: typer.Typer) -> None:
             typer.echo("\n".join(plan.lines))
             for line in plan.warnings:
                 typer.echo(f"brfgs: {line}", err=True)
+            for line in plan.failures:
+                typer.echo(f"brfgs: error: {line}", err=True)
             if plan.failing:
-                typer.echo(f"brfgs: error: {plan.failing} of {plan.total} scenes would fail (the FAIL lines above)",
+                typer.echo(f"brfgs: error: {plan.failing} of {plan.total} scenes would fail",
                            err=True)
                 raise typer.Exit(2)
             return

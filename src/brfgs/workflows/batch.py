@@ -62,9 +62,11 @@ def _splits(validation: bool) -> tuple[str, ...]:
     return ("test", "validation") if validation else ("test",)
 
 
-def missing_steps(s: BatchScene) -> list[str]:
-    """What is missing of the scene's outputs: a subset of ["train", "evaluate", "products"] ([] = finished)."""
-    if run_status(s.run) != "finished" or not (s.run / MODEL_FILE).is_file():
+def missing_steps(s: BatchScene, status: str | None = "unknown") -> list[str]:
+    """What is missing of the scene's outputs: a subset of ["train", "evaluate", "products"] ([] = finished);
+    ``status``: the run's :func:`run_status` when known."""
+    status = run_status(s.run) if status == "unknown" else status
+    if status != "finished" or not (s.run / MODEL_FILE).is_file():
         return ["train", "evaluate"] + (["products"] if s.products is not None else [])
     steps = [] if all((s.run / metrics_file(sp)).is_file() for sp in _splits(s.config["validation"])) else ["evaluate"]
     if s.products is not None and not (products_dir(s) / "products.json").is_file():
@@ -167,8 +169,9 @@ def plan_scene(s: BatchScene) -> tuple[str, str | None]:
     try:
         if not (s.scene / "transforms.json").is_file():
             return "fail", str(UserError("scene folder not found (no transforms.json)", file=s.scene))
-        steps = missing_steps(s)
-        changed = _config_change(s) if run_status(s.run) == "finished" else []
+        status = run_status(s.run)
+        steps = missing_steps(s, status)
+        changed = _config_change(s) if status == "finished" else []
     except UserError as exc:  # an unreadable config.json
         return "fail", str(exc)
     except ValueError:  # a damaged run.json / config.json (both are written atomically)
@@ -207,40 +210,42 @@ def resource_warnings(scenes: list[BatchScene], bc: BatchConfig) -> list[str]:
     return lines
 
 
-def plan_lines(m: Manifest, bc: BatchConfig, check: ManifestCheck | None = None) -> tuple[list[str], int]:
+def plan_lines(m: Manifest, bc: BatchConfig, check: ManifestCheck | None = None) -> tuple[list[str], list[tuple]]:
     """What a batch would do (``--dry-run``): where Ray runs and one line per scene (each problem of
-    ``check``, a manifest's :func:`check_manifest`, as a FAIL line in the scene's place); and how
-    many scenes would fail."""
+    ``check``, a manifest's :func:`check_manifest`, as a FAIL line in the scene's place); and why scenes
+    would fail, as (scene index, one line) (index 0: the whole batch)."""
     total = check.total if check else len(m.scenes)
     where = f"the Ray cluster at {bc.address}" if bc.address else f"a local Ray ({bc.local_cpus or os.cpu_count()} CPUs)"
     lines = [f"manifest {m.path}: {total} scenes, outputs in {m.out}, on {where}"]
-    problems = {}
+    problems: dict[int, list[UserError]] = {}
     for i, exc in check.problems if check else ():
         problems.setdefault(i, []).append(exc)
+    failures = [(i, str(exc)) for i, exc in check.problems] if check else []
     lines += [f"  FAIL: {exc}" for exc in problems.pop(0, [])]
-    failing = set(problems)
     by_index = {s.index: s for s in m.scenes}
-    for i in sorted(set(by_index) | failing):
+    for i in sorted(set(by_index) | set(problems)):
         if i in problems:
             lines += [f"  scene[{i}]: FAIL: {exc}" for exc in problems[i]]
             continue
         s = by_index[i]
         action, what = plan_scene(s)
-        failing.update([i] if action == "fail" else [])
+        if action == "fail":
+            failures.append((i, f"scene '{s.name}' would fail: {what}"))
         text = {"skip": "skip (finished)", "fail": f"FAIL: {what}", "run": f"run {what}"}[action]
         cfg = s.config
         lines.append(f"  {s.name}: {text}  [{s.num_cpus} CPU, {s.num_gpus:g} GPU; preset {cfg['preset']}, "
                      f"variant {cfg['variant']}, seed {cfg['seed']}; scene {s.scene}; out {s.out}]")
-    whole = bool(check) and any(i == 0 for i, _ in check.problems)  # the output root: every scene fails
-    return lines, total if whole else len(failing)
+    return lines, failures
 
 
 @dataclass
 class DryRun:
-    """What ``brfgs batch --dry-run`` prints: the plan, the warnings, how many of the scenes would fail."""
+    """What ``brfgs batch --dry-run`` prints: the plan, the warnings, why scenes would fail (one line
+    each), how many of the manifest's scenes would fail."""
 
     lines: list[str]
     warnings: list[str]
+    failures: list[str]
     failing: int
     total: int
 
@@ -248,8 +253,10 @@ class DryRun:
 def dry_run(path: str | Path, bc: BatchConfig) -> DryRun:
     """Check the manifest at ``path`` and plan every scene (nothing is started or written)."""
     check = check_manifest(path, bc.out)
-    lines, failing = plan_lines(check.manifest, bc, check)
-    return DryRun(lines, resource_warnings(check.manifest.scenes, bc), failing, check.total)
+    lines, failures = plan_lines(check.manifest, bc, check)
+    failing = {i for i, _ in failures}
+    return DryRun(lines, resource_warnings(check.manifest.scenes, bc), [line for _, line in failures],
+                  check.total if 0 in failing else len(failing), check.total)
 
 
 def check_reachable(address: str, timeout_s: float = 5.0) -> None:

@@ -207,13 +207,22 @@ def _check_ints(given: dict, cls, file: Path, where: str) -> None:
 def _construct(d: dict) -> TrainConfig:
     """TrainConfig of options in config.json's form whose types TrainConfig.from_dict has accepted
     (tables made option objects, lists made tuples, as from_dict does)."""
-    kw = {k: v for k, v in d.items() if k != "format_version"}
-    for key, tp in _hints(TrainConfig).items():
-        if dataclasses.is_dataclass(tp) and isinstance(kw.get(key), dict):
-            kw[key] = tp(**kw[key])
-        elif typing.get_origin(tp) is tuple and isinstance(kw.get(key), list):
-            kw[key] = tuple(kw[key])
+    kw = dict(d)
+    del kw["format_version"]
+    tables, tuples = _table_and_tuple_fields()
+    for key, tp in tables:
+        kw[key] = tp(**kw[key])
+    for key in tuples:
+        kw[key] = tuple(kw[key])
     return TrainConfig(**kw)
+
+
+@functools.cache
+def _table_and_tuple_fields() -> tuple[tuple, tuple]:
+    """TrainConfig's fields that are option objects ((name, class) pairs) and tuples (names)."""
+    hints = _hints(TrainConfig)
+    return (tuple((k, tp) for k, tp in hints.items() if dataclasses.is_dataclass(tp)),
+            tuple(k for k, tp in hints.items() if typing.get_origin(tp) is tuple))
 
 
 class TrainConfigs:
@@ -283,11 +292,19 @@ def _product_value(key: str, v, file: Path, field: str):
 def _product_range(key: str, v, file: Path, field: str):
     """``v`` when ProductsOptions.validate() accepts it as option ``key`` (sun zeniths 0-89 deg, a
     positive extent, ...); UserError naming the field otherwise."""
+    problem = _product_problem(key, v)
+    if problem:
+        raise UserError(problem, file=file, field=field)
+    return v
+
+
+@functools.lru_cache(maxsize=1024)
+def _product_problem(key: str, v) -> str | None:
     try:
         ProductsOptions(**{key: v}).validate()
     except UserError as exc:
-        raise UserError(exc.detail, file=file, field=field) from None
-    return v
+        return exc.detail
+    return None
 
 
 def products_options(value, variant: str, file: Path, where: str) -> dict | None:

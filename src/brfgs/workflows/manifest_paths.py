@@ -108,6 +108,7 @@ class _Check:
         self.scene_at: dict[str, int] = {}   # resolved scene folder -> first scene reading it
         self.out_at: dict[str, int] = {}     # resolved output folder -> first scene writing it
         self.outs: list[tuple[int, str]] = []
+        self.nested: set[int] = set()          # scenes whose output folder and a scene folder nest (reported)
         self.by_index = {s.index: s for s in scenes}
         for s in scenes:
             try:
@@ -138,12 +139,14 @@ class _Check:
                 self.error(i, f"two scenes are named {s.name!r} (scene[{first}] and scene[{i}]); give one a 'name'",
                            f"scene[{i}].name")
             self.output(i, out)
-        for path, j in self.scene_at.items():  # a scene folder inside an output folder
-            hit = _within(path, self.out_at)
-            if hit and not _within(hit[0], self.scene_at):  # (an output folder inside a scene's: reported above)
-                s = self.by_index[hit[1]]
-                self.error(hit[1], f"the output folder {s.out} contains the scene folder {self.by_index[j].scene} "
-                           f"(scene '{self.by_index[j].name}'); input data is never written to", f"scene[{hit[1]}].out")
+        for path, j in self.scene_at.items():  # a scene folder inside output folders
+            for folder in _ancestors(path):
+                i = self.out_at.get(folder)
+                if i is not None and i not in self.nested:
+                    self.nested.add(i)
+                    self.error(i, f"the output folder {self.by_index[i].out} contains the scene folder "
+                               f"{self.by_index[j].scene} (scene '{self.by_index[j].name}'); input data is never "
+                               "written to", f"scene[{i}].out")
         return sorted(self.found, key=lambda p: p[0])
 
     def output(self, i: int, out: str) -> None:
@@ -151,6 +154,7 @@ class _Check:
         s, by_index = self.by_index[i], self.by_index
         hit = _within(out, self.scene_at)
         if hit:
+            self.nested.add(i)
             self.error(i, f"the output folder {s.out} lies inside the scene folder {by_index[hit[1]].scene} (scene "
                        f"'{by_index[hit[1]].name}'); input data is never written to", f"scene[{i}].out")
         owner = self.out_at[out]
