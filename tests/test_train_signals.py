@@ -108,3 +108,41 @@ def test_a_second_ctrl_c_inside_a_step_does_not_save_the_half_done_step(scene, r
         train(scene, run, _cfg(), progress=False, log=None)
     monkeypatch.undo()
     assert _same(load(train(scene, run, _cfg(), progress=False, log=None))[0], reference)
+
+
+MOMENTS = [("stage1", s) for s in (1, 2, 3, 4, 5, 6, 7, 8, 9, 11, 12, 13, 15, 16)] + [("stage2", s) for s in range(1, 7)]
+
+
+@pytest.mark.parametrize("at", MOMENTS, ids=[f"{p}-{s}" for p, s in MOMENTS])
+def test_two_presses_10_ms_apart_at_20_moments(scene, reference, tmp_path, at):
+    """A person pressing Ctrl-C twice: the first press after a step (at each of 20 steps of the two
+    stages, checkpoints every 4 steps and the model write at the end among them), the second 10 ms
+    later from another thread, wherever the main thread then is. The rerun (or the run itself, when
+    the first press came after its last step) gives the uninterrupted training's model bit for bit."""
+    import threading
+    import time
+
+    assert len(MOMENTS) == 20
+    run, timers = tmp_path / "run", []
+
+    def cb(phase, step):
+        if (phase, step) == at:
+            os.kill(os.getpid(), signal.SIGINT)
+            timers.append(threading.Timer(0.010, os.kill, (os.getpid(), signal.SIGINT)))
+            timers[-1].start()
+
+    finished = False
+    try:
+        train(scene, run, _cfg(), progress=False, log=None, callback=cb)
+        finished = True
+    except KeyboardInterrupt:
+        pass
+    try:  # the second press lands after train returned: Python's own KeyboardInterrupt
+        for t in timers:
+            t.join()
+        time.sleep(0.05)
+    except KeyboardInterrupt:
+        pass
+    assert len(timers) == 1
+    model = run / "model.safetensors" if finished else train(scene, run, _cfg(), progress=False, log=None)
+    assert _same(load(model)[0], reference)

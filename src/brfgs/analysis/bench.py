@@ -140,6 +140,7 @@ def bench_analysis(
     view()  # warm-up: numba loads its compiled kernels
     all_, cpu = _timed(view, repeats)
     rv = view()
+    view_threads = {"torch": torch.get_num_threads(), "numba": numba.get_num_threads()}
     orders = {}  # the same view in both decode orders (docs/method.md), same run
     if tm.spectral:
         for order in ("pixel", "gaussian"):
@@ -158,7 +159,8 @@ def bench_analysis(
 
     pts, pcs = _timed(pm, polar_repeats)
     return {
-        "machine": machine_record(backend, load_before),
+        "machine": {**machine_record(backend, load_before), "torch_threads": view_threads["torch"],
+                    "numba_threads": view_threads["numba"]},
         "model": "synthetic" if model is None else str(model), "n_gaussians": tm.n_gaussians,
         "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
         "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
