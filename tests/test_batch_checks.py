@@ -16,8 +16,11 @@ from brfgs.data.paths import inside
 from brfgs.errors import UserError
 from brfgs.train.config import TrainConfig
 from brfgs.train.presets import preset
+from brfgs.render import BACKENDS
 from brfgs.workflows import manifest_paths
+from brfgs.workflows.batch_plan import local_gpus
 from brfgs.workflows.bench_manifest import write_manifest
+from brfgs.workflows import manifest as manifest_mod
 from brfgs.workflows.manifest import MAX_STEPS, check_manifest, read_manifest
 
 
@@ -269,6 +272,25 @@ def test_more_cpus_than_the_machine_has_is_a_warning(tmp_path, capsys):
     assert err.startswith("brfgs: warning: 1 scene(s) ask for more CPUs than this machine has") and "a (100000)" in err
     assert main(["batch", str(m), "--dry-run", "--address", "127.0.0.1:1"]) == 0     # a cluster may have them
     assert capsys.readouterr().err == ""
+
+
+def test_more_gpus_than_the_machine_has_is_a_warning(tmp_path, capsys, monkeypatch):
+    _scene(tmp_path / "a")
+    m = _write(tmp_path / "m.toml", "[[scene]]\nscene = 'a'\nnum_gpus = 0.5\n[[scene]]\nscene = 'a'\nname = 'b'\n"
+               "num_gpus = 3\n")
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,1")
+    assert local_gpus() == 2
+    assert main(["batch", str(m), "--dry-run"]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err == ("brfgs: warning: 1 scene(s) ask for more GPUs than this machine has (2): b (3); a local batch "
+                   "fails them at once, a Ray cluster (--address) may have them")
+    for visible, n in (("", 0), ("-1", 0), ("0,-1,1", 1), ("GPU-5e1f,GPU-77aa,GPU-0b3c", 3)):
+        monkeypatch.setenv("CUDA_VISIBLE_DEVICES", visible)
+        assert local_gpus() == n
+
+
+def test_backend_names_are_the_rasterizers():
+    assert manifest_mod.BACKENDS == BACKENDS
 
 
 # ------------------------------------------------------------------------------------------ the benchmark

@@ -27,8 +27,7 @@ def register(app: typer.Typer) -> None:
         with --address); finished scenes are skipped, a failed one is retried (unless its input is at fault)
         and reported; writes OUT/summary.md, .csv and .json. Exit status 2 if any scene failed (with --dry-run:
         would fail)."""
-        from brfgs.workflows.batch import dry_run, run_batch
-        from brfgs.workflows.manifest import read_manifest
+        from brfgs.workflows.batch_plan import dry_run
 
         bc = apply_options(BatchConfig(), options)
         if bc.dry_run:
@@ -43,6 +42,9 @@ def register(app: typer.Typer) -> None:
                            err=True)
                 raise typer.Exit(2)
             return
+        from brfgs.workflows.batch import run_batch
+        from brfgs.workflows.manifest import read_manifest
+
         m = read_manifest(manifest, bc.out)
         with folder_lock(m.out, "brfgs batch"):  # one batch per output root
             res = run_batch(m, bc, say=(lambda *a: None) if bc.quiet else typer.echo)

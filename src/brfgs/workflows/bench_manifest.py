@@ -3,7 +3,7 @@
 The synthetic manifest lists N scene folders (each holds a transforms.json, all a dry run reads of
 a scene), with the options a real campaign gives: defaults for every scene, a seed per scene, every
 tenth scene its own step counts, every hundredth its own output folder outside the output root and
-a table of densification options. The dry run (:func:`brfgs.workflows.batch.dry_run`: read, check
+a table of densification options. The dry run (:func:`brfgs.workflows.batch_plan.dry_run`: read, check
 every option and path, plan every scene) is timed in this process, without the interpreter's start.
 """
 
@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from brfgs.workflows.batch import dry_run
+from brfgs.workflows.batch_plan import dry_run
 from brfgs.workflows.options import BatchConfig
 
 DEFAULTS = """out = "runs"

@@ -43,7 +43,6 @@ from pathlib import Path
 
 from brfgs.errors import UserError
 from brfgs.products.options import ProductsOptions
-from brfgs.render.rasterize import BACKENDS
 from brfgs.train.config import TrainConfig
 from brfgs.train.presets import PRESETS, preset
 from brfgs.workflows.manifest_paths import Resolver, check_paths
@@ -59,6 +58,7 @@ BATCH_KEYS = ("products", "num_cpus", "num_gpus")       # per scene or in [defau
 TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 PRODUCT_KEYS = tuple(f.name for f in dataclasses.fields(ProductsOptions) if f.name not in ("backend", "overwrite",
                                                                                             "progress"))
+BACKENDS = ("auto", "torch", "cpu", "cuda")   # the rasterizers (brfgs.render.BACKENDS, without importing it)
 RUN_DIR = "run"          # the training run folder inside a scene's output folder
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
