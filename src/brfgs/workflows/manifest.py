@@ -23,8 +23,12 @@ manifest's folder::
     max_gaussians = 200000
 
 A misspelt key, a value of the wrong type or out of range is a :class:`UserError` naming the
-manifest and the field (``scene[2].stage1_step``: the second scene). Output folders never lie
-inside (or contain) a scene folder, and no two scenes share one.
+manifest and the field (``scene[2].stage1_step``: the second scene): each scene's training options
+pass TrainConfig.validate(), its backend is named, its whole numbers are bounded (step counts by
+MAX_STEPS), products options pass ProductsOptions.validate() and resources are bounded. The paths
+(:mod:`brfgs.workflows.manifest_paths`): output folders are folders, never lie inside (or contain)
+a scene folder, and no two scenes share one. :func:`check_manifest` collects every scene's problem
+(``--dry-run`` lists them); :func:`read_manifest` raises the first.
 """
 
 from __future__ import annotations
