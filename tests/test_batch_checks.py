@@ -53,6 +53,8 @@ def _scene(path: Path) -> Path:
     ("[scene.products]\nsize = [64, 100000]\n", "scene[1].products.size"),
     ("lr_spec = inf\n", "scene[1].lr_spec"),
     ("preset = ['fast']\n", "scene[1].preset"),
+    ("densify = 5\n", "scene[1].densify"),
+    ("[scene.mcmc]\nrefine_stop = 'late'\n", "scene[1].mcmc.refine_stop"),
 ])
 def test_every_field_is_checked_and_named(tmp_path, text, field):
     _scene(tmp_path / "a")

@@ -254,7 +254,8 @@ class TrainConfigs:
         d = {**base, **given}
         for key, v in base.items():  # every scene its own tables; a given table changes the preset's key by key
             if isinstance(v, dict):
-                d[key] = {**v, **given[key]} if isinstance(given.get(key), dict) else dict(v)
+                mine = given.get(key, v)
+                d[key] = {**v, **mine} if isinstance(mine, dict) else mine
         shape = (name, _shape(given))
         try:
             cfg = _construct(d) if shape in self._typed else TrainConfig.from_dict(d, source=str(file))
