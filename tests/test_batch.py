@@ -134,9 +134,13 @@ def test_manifest_typo_on_the_command_line(tmp_path, capsys):
 def test_dry_run_and_the_install_hint_without_ray(tmp_path, capsys, monkeypatch):
     make_scene(tmp_path / "a")
     m = _write(tmp_path / "m.toml", TINY + "[[scene]]\nscene = 'a'\n[[scene]]\nscene = 'missing'\n")
-    assert main(["batch", str(m), "--dry-run"]) == 0
-    out = capsys.readouterr().out
+    assert main(["batch", str(m), "--dry-run"]) == 2                              # a scene would fail
+    cap = capsys.readouterr()
+    out = cap.out
     assert "a: run train -> evaluate -> products" in out and "missing: FAIL" in out and "no transforms.json" in out
+    err = cap.err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith("brfgs: error: scene 'missing' would fail: ") and "transforms" in err[0]
+    assert err[1] == "brfgs: error: 1 of 2 scenes would fail"
     assert not (tmp_path / "m_batch").exists()                                     # a dry run writes nothing
     monkeypatch.setattr(batch_mod, "ray", None)
     assert main(["batch", str(m)]) == 2

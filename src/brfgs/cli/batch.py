@@ -25,15 +25,27 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run train -> evaluate -> products for every scene of MANIFEST as Ray tasks (locally, or on a cluster
         with --address); finished scenes are skipped, a failed one is retried (unless its input is at fault)
-        and reported; writes OUT/summary.md, .csv and .json. Exit status 2 if any scene failed."""
-        from brfgs.workflows.batch import plan_lines, run_batch
-        from brfgs.workflows.manifest import read_manifest
+        and reported; writes OUT/summary.md, .csv and .json. Exit status 2 if any scene failed (with --dry-run:
+        would fail)."""
+        from brfgs.workflows.batch_plan import dry_run
 
         bc = apply_options(BatchConfig(), options)
-        m = read_manifest(manifest, bc.out)
         if bc.dry_run:
-            typer.echo("\n".join(plan_lines(m, bc)))
+            plan = dry_run(manifest, bc)
+            typer.echo("\n".join(plan.lines))
+            for line in plan.warnings:
+                typer.echo(f"brfgs: {line}", err=True)
+            for line in plan.failures:
+                typer.echo(f"brfgs: error: {line}", err=True)
+            if plan.failing:
+                typer.echo(f"brfgs: error: {plan.failing} of {plan.total} scenes would fail",
+                           err=True)
+                raise typer.Exit(2)
             return
+        from brfgs.workflows.batch import run_batch
+        from brfgs.workflows.manifest import read_manifest
+
+        m = read_manifest(manifest, bc.out)
         with folder_lock(m.out, "brfgs batch"):  # one batch per output root
             res = run_batch(m, bc, say=(lambda *a: None) if bc.quiet else typer.echo)
         typer.echo(res.markdown)

@@ -1,6 +1,7 @@
 """``brfgs bench``: speed and memory benchmarks (render: the rasterizer; kernels: the BRDF head;
 analysis: an arbitrary view and a polar BRF map; view: one view with the fused and the reference
-decoder; train: a training run with both decoders; viewer: one viewer frame per display mode)."""
+decoder; train: a training run with both decoders; viewer: one viewer frame per display mode;
+manifest: the dry run of brfgs batch on a manifest of many scenes)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ import typer
 from brfgs.cli._config import apply_options, config_command
 from brfgs.cli.train import build_config
 from brfgs.errors import UserError
-from brfgs.workflows.options import (BenchAnalysisOptions, BenchKernelsOptions, BenchRenderOptions, BenchTrainOptions,
-                                     BenchViewerOptions, BenchViewOptions, check_bench)
+from brfgs.workflows.options import (BenchAnalysisOptions, BenchKernelsOptions, BenchManifestOptions,
+                                     BenchRenderOptions, BenchTrainOptions, BenchViewerOptions, BenchViewOptions,
+                                     check_bench)
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
@@ -242,5 +244,24 @@ def bench_parallel_cmd(
         sp = ", ".join(f"{k} x{v:.2f}" for k, v in r.items())
         typer.echo(f"speed-up of {n} processes (same run): {sp}; max |model difference| "
                    f"{res['max_abs_model_difference'][n]:.2e}")
+    if o.json is not None:
+        _write_json(o.json, res)
+
+
+@config_command(bench_app, "manifest", BenchManifestOptions)
+def bench_manifest_cmd(options: dict | None = None) -> None:
+    """Time `brfgs batch MANIFEST --dry-run` (read, check every option and path, plan every scene) on a
+    synthetic manifest of --scenes scene folders written to a temporary folder (docs/scaling.md)."""
+    from brfgs.workflows.bench_manifest import bench_manifest
+
+    o = apply_options(BenchManifestOptions(), options)
+    check_bench(o)
+    res = bench_manifest(o.scenes, o.repeats)
+    m = res["machine"]
+    la, lb = m["load_average_1_5_15_before"], m["load_average_1_5_15_after"]
+    typer.echo(f"{res['scenes']} scenes (written in {res['write_s']:.1f} s); {m['cpu_count']} cores, load average "
+               f"{la[0]:.2f} {la[1]:.2f} {la[2]:.2f} before, {lb[0]:.2f} {lb[1]:.2f} {lb[2]:.2f} after")
+    typer.echo(f"dry run: median {res['median_s']:.2f} s of {res['repeats']} ("
+               + ", ".join(f"{t:.2f}" for t in res["rounds_s"]) + f" s), {res['per_scene_us']:.0f} us per scene")
     if o.json is not None:
         _write_json(o.json, res)

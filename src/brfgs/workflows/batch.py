@@ -38,13 +38,13 @@ from brfgs.products.report import ProductsOptions, products_report
 from brfgs.data import atomic
 from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
-from brfgs.model import MODEL_FILE
 from brfgs.render import configure_threads
 from brfgs.train import train
 from brfgs.train.config import TrainConfig
-from brfgs.train.run_folder import CONFIG_FILE, run_status
+from brfgs.train.run_folder import run_status
 from brfgs.workflows.batch_summary import (ERROR_LOG, LOG_FILE, STATE_FILE, failure_lines, products_dir, read_state,
                                            scene_row, summary_markdown, write_summary)
+from brfgs.workflows.batch_plan import eval_splits, plan_scene
 from brfgs.workflows.manifest import BatchScene, Manifest
 from brfgs.workflows.options import BatchConfig
 
@@ -58,21 +58,6 @@ _TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
 # ------------------------------------------------------------------------------------------ one scene (a Ray task)
-def _splits(cfg: TrainConfig) -> tuple[str, ...]:
-    return ("test", "validation") if cfg.validation else ("test",)
-
-
-def missing_steps(s: BatchScene) -> list[str]:
-    """What is missing of the scene's outputs: a subset of ["train", "evaluate", "products"] ([] = finished)."""
-    cfg = TrainConfig.from_dict(s.config)
-    if run_status(s.run) != "finished" or not (s.run / MODEL_FILE).is_file():
-        return ["train", "evaluate"] + (["products"] if s.products is not None else [])
-    steps = [] if all((s.run / metrics_file(sp)).is_file() for sp in _splits(cfg)) else ["evaluate"]
-    if s.products is not None and not (products_dir(s) / "products.json").is_file():
-        steps.append("products")
-    return steps
-
-
 def scene_pipeline(s: BatchScene, log: Callable[[str], None]) -> None:
     """Train (or resume) → evaluate → products, each only when its output is missing."""
     cfg = TrainConfig.from_dict(s.config)
@@ -85,7 +70,7 @@ def scene_pipeline(s: BatchScene, log: Callable[[str], None]) -> None:
         log(f"training {s.scene} -> {s.run}")
         train(s.scene, s.run, cfg, progress=False, log=log)
         trained = True
-    for split in _splits(cfg):
+    for split in eval_splits(cfg.validation):
         if trained or not (s.run / metrics_file(split)).is_file():
             res = evaluate_run(s.run, s.scene, backend=cfg.backend, progress=False, split=split)
             for line in summary_lines(res):
@@ -155,44 +140,6 @@ def run_scene(s: BatchScene, batch_id: str, pipeline: Callable | None = None) ->
 
 
 # ------------------------------------------------------------------------------------------ the batch (the driver)
-def _config_change(s: BatchScene) -> list[str]:
-    """Options (other than threads) in which a finished run in the scene's folder differs from the manifest's."""
-    path = s.run / CONFIG_FILE
-    if not path.is_file():
-        return []
-    return TrainConfig.from_run_config(path).changed_options(TrainConfig.from_dict(s.config), ignore=("threads",))
-
-
-def plan_scene(s: BatchScene) -> tuple[str, str | None]:
-    """("skip", None) for a finished scene, ("fail", message) for one that cannot run, else ("run", steps)."""
-    if not (s.scene / "transforms.json").is_file():
-        return "fail", str(UserError("scene folder not found (no transforms.json)", file=s.scene))
-    try:
-        steps = missing_steps(s)
-        changed = _config_change(s) if run_status(s.run) == "finished" else []
-    except UserError as exc:  # an unreadable config.json
-        return "fail", str(exc)
-    except ValueError:  # a damaged run.json / config.json (both are written atomically)
-        return "fail", str(UserError("run.json or config.json is not valid JSON", file=s.run))
-    if changed:
-        return "fail", str(UserError(f"a finished run with other options ({', '.join(changed)}) is here; it is "
-                                     "never overwritten: remove it or give the scene another 'out'", file=s.run))
-    return ("skip", None) if not steps else ("run", " -> ".join(steps))
-
-
-def plan_lines(m: Manifest, bc: BatchConfig) -> list[str]:
-    """What a batch would do (``--dry-run``): one line per scene, and where Ray runs."""
-    where = f"the Ray cluster at {bc.address}" if bc.address else f"a local Ray ({bc.local_cpus or os.cpu_count()} CPUs)"
-    lines = [f"manifest {m.path}: {len(m.scenes)} scenes, outputs in {m.out}, on {where}"]
-    for s in m.scenes:
-        action, what = plan_scene(s)
-        text = {"skip": "skip (finished)", "fail": f"FAIL: {what}", "run": f"run {what}"}[action]
-        cfg = s.config
-        lines.append(f"  {s.name}: {text}  [{s.num_cpus} CPU, {s.num_gpus:g} GPU; preset {cfg['preset']}, "
-                     f"variant {cfg['variant']}, seed {cfg['seed']}; scene {s.scene}; out {s.out}]")
-    return lines
-
-
 def check_reachable(address: str, timeout_s: float = 5.0) -> None:
     """UserError unless a TCP connection to ``address`` ('HOST:PORT' or 'ray://HOST:PORT') opens within
     ``timeout_s``: ray.init keeps retrying an unreachable cluster for minutes. 'auto' is not checked."""

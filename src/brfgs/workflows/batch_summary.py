@@ -15,7 +15,7 @@ import json
 import time
 from pathlib import Path
 
-from brfgs.evaluation.evaluate import metrics_file
+from brfgs.analysis.output import metrics_file
 from brfgs.data import atomic
 from brfgs.model import MODEL_FILE
 from brfgs.workflows.manifest import BatchScene

@@ -141,6 +141,15 @@ class BenchTrainOptions:
     json: Optional[Path] = _b(None, JSON_HELP)
 
 
+@dataclass
+class BenchManifestOptions:
+    """``brfgs bench manifest``: the dry run of ``brfgs batch`` on a synthetic manifest of many scenes."""
+
+    scenes: int = _b(10_000, "Scenes of the synthetic manifest (1..1000000).")
+    repeats: int = _b(3, "Timed dry runs (median reported).")
+    json: Optional[Path] = _b(None, JSON_HELP)
+
+
 def check_bench(o) -> None:
     """UserError naming the option unless the benchmark options ``o`` are in range."""
     for name in ("repeats", "polar_repeats", "gaussians", "d"):
@@ -151,6 +160,8 @@ def check_bench(o) -> None:
         v = getattr(o, name, None)
         if isinstance(v, tuple) and (not v or any(x <= 0 for x in v)) or isinstance(v, int) and v < 8 and name == "size":
             raise UserError(f"expected positive values, got {v}", field="--" + name)
+    if not 1 <= getattr(o, "scenes", 1) <= 1_000_000:
+        raise UserError(f"scenes must be in 1..1000000, got {o.scenes}", field="--scenes")
     if getattr(o, "threads", 0) < 0:
         raise UserError(f"threads must be >= 0, got {o.threads}", field="--threads")
     if o.json is not None and o.json.is_dir():
