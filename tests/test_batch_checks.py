@@ -14,13 +14,13 @@ import pytest
 from brfgs.cli import main
 from brfgs.data.paths import inside
 from brfgs.errors import UserError
+from brfgs.train import config as config_mod
 from brfgs.train.config import TrainConfig
 from brfgs.train.presets import preset
 from brfgs.render import BACKENDS
 from brfgs.workflows import manifest_paths
 from brfgs.workflows.batch_plan import local_gpus
 from brfgs.workflows.bench_manifest import write_manifest
-from brfgs.workflows import manifest as manifest_mod
 from brfgs.workflows.manifest import MAX_STEPS, check_manifest, read_manifest
 
 
@@ -39,6 +39,11 @@ def _scene(path: Path) -> Path:
 # ------------------------------------------------------------------------------------------ fields
 @pytest.mark.parametrize("text, field", [
     ("backend = 'quantum'\n", "scene[1].backend"),
+    ("poses = 'quantum'\n", "scene[1].poses"),
+    ("band_strategy = 'best'\n", "scene[1].band_strategy"),
+    ("cache_gib = -1\n", "scene[1].cache_gib"),
+    ("init_opacity = 1.5\n", "scene[1].init_opacity"),
+    ("value_range = [10, -0.5]\n", "scene[1].value_range"),
     ("stage1_steps = 9223372036854775807\n", "scene[1].stage1_steps"),
     (f"ae_steps = {MAX_STEPS + 1}\n", "scene[1].ae_steps"),
     ("seed = -1\n", "scene[1].seed"),
@@ -217,7 +222,7 @@ def test_dry_run_lists_each_failing_scene_and_exits_2(tmp_path, capsys):
     assert len(out) == 6 and out[1].startswith("  a: run train")
     assert "scene[2]: FAIL:" in out[2] and "scene[3]: FAIL:" in out[3] and "missing: FAIL:" in out[4]
     assert len(err) == 5 and all(line.startswith("brfgs: error: ") for line in err)
-    assert "field 'scene[2].backend': unknown backend 'quantum'" in err[0]
+    assert "field 'scene[2].backend': backend must be one of auto, torch, cpu, cuda, got 'quantum'" in err[0]
     assert "field 'scene[3].scene': cannot follow the links of" in err[1] and "loop1" in err[1]
     assert "field 'scene[5].products.sun_zenith_deg'" in err[2]
     assert err[3].startswith("brfgs: error: scene 'missing' would fail:")
@@ -292,7 +297,7 @@ def test_more_gpus_than_the_machine_has_is_a_warning(tmp_path, capsys, monkeypat
 
 
 def test_backend_names_are_the_rasterizers():
-    assert manifest_mod.BACKENDS == BACKENDS
+    assert config_mod.BACKENDS == BACKENDS
 
 
 # ------------------------------------------------------------------------------------------ the benchmark

@@ -12,13 +12,16 @@ import typing
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+from brfgs.bands.options import STRATEGIES as BAND_STRATEGIES
 from brfgs.errors import UserError
+from brfgs.init.options import POSE_MODES
 from brfgs.model.densify_config import STRATEGIES, ADCConfig, MCMCConfig
 from brfgs.train.config_format import upgrade
 
 VARIANTS = ("brf", "sh", "neural", "cir")
 DECODE_ORDERS = ("pixel", "gaussian")
 INIT_FILLS = ("surface", "mvs", "truth")
+BACKENDS = ("auto", "torch", "cpu", "cuda")  # brfgs.render.BACKENDS (a test keeps them equal; no render import here)
 MAX_SUPERSAMPLE = 4  # --supersample: at most 4 x 4 sub-pixel samples per pixel (brfgs.render.supersample)
 FORMAT_VERSION = 2  # of config.json (and the options stored in checkpoints and model files)
 
@@ -157,7 +160,8 @@ class TrainConfig:
     def validate(self) -> "TrainConfig":
         """``self`` when every option is in range; UserError naming the option otherwise."""
         for name, allowed in (("variant", VARIANTS), ("decode", DECODE_ORDERS), ("init_fill", INIT_FILLS),
-                              ("strategy", STRATEGIES)):
+                              ("strategy", STRATEGIES), ("poses", POSE_MODES), ("band_strategy", BAND_STRATEGIES),
+                              ("backend", BACKENDS)):
             if getattr(self, name) not in allowed:
                 raise UserError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}", field=name)
         if not 1 <= self.latent_dim <= 32:
@@ -190,6 +194,13 @@ class TrainConfig:
         for name in ("views_per_step", "checkpoint_every", "max_gaussians"):
             if getattr(self, name) < 1:
                 raise UserError(f"{name} must be >= 1, got {getattr(self, name)}", field=name)
+        if not (math.isfinite(self.cache_gib) and self.cache_gib >= 0):
+            raise UserError(f"cache_gib must be >= 0, got {self.cache_gib}", field="cache_gib")
+        if not 0 < self.init_opacity < 1:
+            raise UserError(f"init_opacity must be in (0, 1), got {self.init_opacity}", field="init_opacity")
+        lo, hi = self.value_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise UserError(f"value_range must be two finite numbers LO < HI, got {lo}, {hi}", field="value_range")
         bad = [c for c in self.components if c not in ("iso", "vol", "geo", "spec")]
         if bad or not self.components:
             raise UserError(f"components must be a non-empty subset of iso,vol,geo,spec, got {self.components}", field="components")

@@ -62,7 +62,6 @@ BATCH_KEYS = ("products", "num_cpus", "num_gpus")       # per scene or in [defau
 TRAIN_KEYS = tuple(f.name for f in dataclasses.fields(TrainConfig))
 PRODUCT_KEYS = tuple(f.name for f in dataclasses.fields(ProductsOptions) if f.name not in ("backend", "overwrite",
                                                                                             "progress"))
-BACKENDS = ("auto", "torch", "cpu", "cuda")   # the rasterizers (brfgs.render.BACKENDS, without importing it)
 RUN_DIR = "run"          # the training run folder inside a scene's output folder
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
@@ -266,9 +265,6 @@ class TrainConfigs:
         except TypeError as exc:  # a value of a wrong type that from_dict's check let through
             raise UserError(f"invalid options ({exc})", file=file, field=where) from None
         _check_ints(given, TrainConfig, file, where)
-        if cfg.backend not in BACKENDS:
-            raise UserError(f"unknown backend {cfg.backend!r}; choose {', '.join(BACKENDS)}", file=file,
-                            field=f"{where}.backend")
         return cfg, d
 
 
