@@ -94,7 +94,17 @@ def test_crs_must_be_local(tmp_path):
 
 
 BAD = {
-    "json": ("{not json", None, "invalid JSON"),
+    "json": ("{not json", None, "not valid JSON"),
+    "huge_int": ('{"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, ' + "1" + "0" * 400 + '], [0, 0]]]}',
+                 "coordinates[0][2]", "out-of-range"),
+    "digits": ('{"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, ' + "7" * 5000 + '], [0, 0]]]}', None,
+               "not valid JSON"),
+    "deep": ("[" * 5000 + "]" * 5000, None, "nested deeper"),
+    "nan": ('{"type": "Polygon", "coordinates": [[[0, 0], [1, 0], [1, NaN], [0, 0]]]}', "coordinates[0][2]",
+            "non-finite"),
+    "not_utf8": (b"\xff\xfe{", None, "UTF-8"),
+    "four_numbers": ({"type": "Polygon", "coordinates": [[[0, 0, 0, 0], [1, 0], [1, 1], [0, 0]]]},
+                     "coordinates[0][0]", "position"),
     "point": ({"type": "Point", "coordinates": [1.0, 2.0]}, "type", "Polygon or MultiPolygon"),
     "short_ring": ({"type": "Polygon", "coordinates": [[[0, 0], [1, 1], [0, 0]]]}, "coordinates[0]", "at least 3"),
     "text_coord": ({"type": "Polygon", "coordinates": [[[0, 0], [1, "a"], [1, 1], [0, 0]]]}, "coordinates[0][1]",
@@ -112,7 +122,10 @@ BAD = {
 def test_malformed_geojson_is_exit_2_naming_the_file(run_dir, tmp_path, capsys, case):
     content, field, words = BAD[case]
     path = tmp_path / f"{case}.geojson"
-    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content if isinstance(content, str) else json.dumps(content))
     out = tmp_path / "out"
     assert main(["brf", str(run_dir), "--roi", str(path), "-o", str(out), "-q"]) == 2
     err = capsys.readouterr().err

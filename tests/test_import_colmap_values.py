@@ -180,3 +180,18 @@ def test_rigs_and_frames_that_do_not_hold_together_are_refused(tmp_path, capsys)
     (sparse / "points3D.bin").unlink()
     rc, err = run_import(root, capsys, "--sparse", str(sparse))
     assert rc == 2 and "lacks points3D.bin" in err
+
+
+@pytest.mark.parametrize("side, field", [
+    ({"enu_from_colmap": "abc"}, "enu_from_colmap"),
+    ({"enu_from_colmap": [[1, 2], [3]]}, "enu_from_colmap"),
+    ({"enu_from_colmap": [[1e400] * 4] * 4}, "enu_from_colmap"),
+    ({"camera_positions_enu": [1, 2, 3]}, "camera_positions_enu"),
+    ({"camera_positions_enu": {"v0": "a", "v1": [0, 0, 1], "v2": [1, 0, 0]}}, "camera_positions_enu.v0"),
+    ({"camera_positions_enu": {"v0": [0, 0, 1], "v1": [[0], 0, 1]}}, "camera_positions_enu.v1"),
+])
+def test_a_sidecar_of_the_wrong_shape_is_one_line(tmp_path, capsys, side, field):
+    root = make_project(tmp_path / "p", TINY)
+    (root / "side.json").write_text(json.dumps(side).replace("Infinity", "1e400"))
+    rc, err = run_import(root, capsys, "--sidecar", str(root / "side.json"))
+    assert rc == 2 and "side.json" in err and f"field '{field}'" in err, err

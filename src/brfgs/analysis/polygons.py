@@ -12,12 +12,12 @@ other than a local/ENU one is refused.
 from __future__ import annotations
 
 import json
-import math
 import re
 from pathlib import Path
 
 import numpy as np
 
+from brfgs.data.validation import finite_number, read_json_file
 from brfgs.errors import UserError
 
 __all__ = ["points_in_polygon", "points_in_polygons", "ring_area", "GEOJSON_SUFFIXES", "read_geojson_polygons",
@@ -89,11 +89,20 @@ def is_lonlat_crs(crs) -> bool:
 
 def _check_crs(obj: dict, path: Path, where: str) -> None:
     if "crs" in obj and not _is_local_crs(obj["crs"]) and not is_lonlat_crs(obj["crs"]):
-        raise UserError(f"coordinate reference system {json.dumps(obj['crs'])} is not supported: the scene frame is "
+        raise UserError(f"coordinate reference system {_short(obj['crs'])} is not supported: the scene frame is "
                         "local ENU metres (x east, y north, around the scene centre), so the polygon must be "
                         "given in it; transform the coordinates into that frame and remove the 'crs' member "
                         "(or name a local one, e.g. {\"type\": \"name\", \"properties\": {\"name\": \"local-ENU\"}})",
                         file=path, field=f"{where}crs" if where else "crs")
+
+
+def _short(value) -> str:
+    """A JSON value for a message: at most 80 characters (a hostile value may be huge)."""
+    try:
+        text = json.dumps(value)
+    except (ValueError, RecursionError):
+        text = repr(type(value))
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _geojson_ring(ring, path: Path, where: str) -> np.ndarray:
@@ -101,13 +110,14 @@ def _geojson_ring(ring, path: Path, where: str) -> np.ndarray:
         raise UserError("a linear ring must be a list of positions [x, y]", file=path, field=where)
     pts = []
     for k, pos in enumerate(ring):
-        if (not isinstance(pos, list) or len(pos) < 2
+        if (not isinstance(pos, list) or not 2 <= len(pos) <= 3
                 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in pos)):
-            raise UserError(f"a position must be [x, y] or [x, y, z] numbers (ENU metres), got {json.dumps(pos)}",
+            raise UserError(f"a position must be [x, y] or [x, y, z] numbers (ENU metres), got {_short(pos)}",
                             file=path, field=f"{where}[{k}]")
-        if not all(math.isfinite(float(c)) for c in pos[:2]):
-            raise UserError(f"non-finite coordinate {json.dumps(pos)}", file=path, field=f"{where}[{k}]")
-        pts.append((float(pos[0]), float(pos[1])))
+        xy = [finite_number(c) for c in pos[:2]]
+        if None in xy:
+            raise UserError(f"non-finite or out-of-range coordinate {_short(pos)}", file=path, field=f"{where}[{k}]")
+        pts.append((xy[0], xy[1]))
     v = np.array(pts, float).reshape(-1, 2)
     if len(v) >= 2 and np.array_equal(v[0], v[-1]):
         v = v[:-1]                                   # GeoJSON rings repeat the first position at the end
@@ -164,12 +174,7 @@ def read_geojson_polygons(path: str | Path) -> tuple[list[list[np.ndarray]], str
     path = Path(path)
     if not path.is_file():
         raise UserError("ROI GeoJSON file not found", file=path, field="--roi")
-    try:
-        data = json.loads(path.read_text())
-    except UnicodeDecodeError:
-        raise UserError("not a text (UTF-8) GeoJSON file", file=path) from None
-    except json.JSONDecodeError as exc:
-        raise UserError(f"invalid JSON ({exc})", file=path) from None
+    data = read_json_file(path, "GeoJSON file")
     if not isinstance(data, dict) or "type" not in data:
         raise UserError("not a GeoJSON object (a JSON object with a 'type' member)", file=path, field="type")
     _check_crs(data, path, "")

@@ -18,7 +18,6 @@ command line (``--roi``): :mod:`brfgs.analysis.roi_spec`.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from brfgs.analysis.polygons import points_in_polygon, points_in_polygons, ring_area
 from brfgs.data.cameras import Intrinsics, pixel_rays
+from brfgs.data.validation import read_json_file
 from brfgs.errors import UserError
 
 __all__ = [
@@ -301,10 +301,7 @@ def read_materials_json(truth_dir: Path) -> dict[int, str]:
     path = Path(truth_dir) / "materials.json"
     if not path.is_file():
         raise UserError("no materials.json: material ROIs need a simulated scene's truth/ folder", file=path)
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"invalid JSON ({exc})", file=path) from None
+    data = read_json_file(path, "materials file")
     out: dict[int, str] = {}
     items = data.get("materials", data) if isinstance(data, dict) else data
     if isinstance(items, dict):

@@ -19,7 +19,6 @@ turns the spec into an :class:`brfgs.analysis.roi.ROI` for a model (and, for mat
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from brfgs.analysis.options import parse_floats
 from brfgs.analysis.polygons import GEOJSON_SUFFIXES, is_lonlat_crs, read_geojson_polygons
 from brfgs.analysis.roi import ROI, PointSetROI, PolygonROI, material_points, roi_from_view_mask
 from brfgs.data.scene import Scene
+from brfgs.data.validation import read_json_file
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 
@@ -71,7 +71,7 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
         if kind in ("geojson", "lonlat") and not rest.strip():
             raise UserError(f"{kind} ROI: expected '{kind}:PATH'", field="--roi")
         polys, fname = read_geojson_polygons(path)
-        lonlat = kind == "lonlat" or is_lonlat_crs(json.loads(path.read_text()).get("crs"))
+        lonlat = kind == "lonlat" or is_lonlat_crs(read_json_file(path, "GeoJSON file").get("crs"))
         nm = name or fname or path.stem
         return ROISpec("polygon", nm, polygon_xy_m=polys[0][0], polygons=polys, lonlat=lonlat,
                        source={"kind": "geojson", "file": str(path), "n_polygons": len(polys),

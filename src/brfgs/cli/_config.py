@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import json
 import math
 import types
 import typing
@@ -143,10 +142,9 @@ def read_config_file(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise UserError("config file not found", file=path)
-    try:
-        data = json.loads(path.read_text())
-    except (ValueError, RecursionError, UnicodeDecodeError):
-        raise UserError("not a JSON file", file=path) from None
+    from brfgs.data.validation import read_json_file
+
+    data = read_json_file(path, "config file")
     if not isinstance(data, dict):
         raise UserError("expected a JSON object of training options", file=path)
     return data

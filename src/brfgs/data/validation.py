@@ -7,6 +7,7 @@ Every check raises :class:`brfgs.errors.UserError` naming the file and the field
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -103,6 +104,44 @@ def json_depth(obj) -> int:
             depth = max(depth, d)
             stack.extend((v, d + 1) for v in (o.values() if isinstance(o, dict) else o))
     return depth
+
+
+def read_json_file(path: Path, what: str = "JSON file"):
+    """The parsed content of a JSON file a user gives (transforms.json, an ROI GeoJSON, a sidecar):
+    at most MAX_JSON_BYTES and MAX_JSON_DEPTH levels; UserError naming the file for a missing,
+    oversized, undecodable or malformed file (an integer of > 4300 digits included)."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_JSON_BYTES:
+            raise UserError(f"{size} bytes, more than the {MAX_JSON_BYTES} bytes a {what} may have", file=path)
+        text = path.read_bytes().decode("utf-8")
+        data = json.loads(text)
+    except FileNotFoundError:
+        raise UserError(f"{what} not found", file=path) from None
+    except IsADirectoryError:
+        raise UserError(f"a folder, not a {what}", file=path) from None
+    except RecursionError:
+        raise UserError(f"nested deeper than {MAX_JSON_DEPTH} levels", file=path) from None
+    except UnicodeDecodeError:
+        raise UserError(f"not a text (UTF-8) {what}", file=path) from None
+    except ValueError as exc:  # JSONDecodeError, or an integer of > 4300 digits
+        raise UserError(f"not valid JSON ({str(exc)[:200]})", file=path) from None
+    if json_depth(data) > MAX_JSON_DEPTH:
+        raise UserError(f"nested deeper than {MAX_JSON_DEPTH} levels", file=path)
+    return data
+
+
+def finite_number(value) -> float | None:
+    """``value`` as a finite float, or None when it is not a number (bool included), is NaN/inf or an
+    integer beyond the float range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        f = float(value)
+    except OverflowError:
+        return None
+    return f if math.isfinite(f) else None
 
 
 def path_text(rel: object, file: Path, field: str) -> str:

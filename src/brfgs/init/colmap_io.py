@@ -30,7 +30,6 @@ camera, one trivial rig and frame per image) that pycolmap and COLMAP open.
 from __future__ import annotations
 
 import zlib  # noqa: F401  (must precede pycolmap; see brfgs.init.colmap)
-import json
 from pathlib import Path, PurePosixPath
 
 import numpy as np
@@ -39,6 +38,7 @@ import pycolmap
 
 from brfgs.data import atomic
 from brfgs.data.cameras import GL_TO_CV
+from brfgs.data.validation import read_json_file
 from brfgs.errors import UserError
 from brfgs.init.colmap_model import MAX_COMPONENT_BYTES, Camera
 from brfgs.init.colmap_read import read_model
@@ -97,12 +97,21 @@ def _find_cube(images: Path, stem: str, where: Path) -> Path:
     raise UserError(f"no cube {stem}{{{','.join(CUBE_SUFFIXES)}}} in {images} for COLMAP image {stem!r}", file=where)
 
 
+def _number_array(value, shape: tuple[int, ...]) -> np.ndarray | None:
+    """``value`` (nested JSON lists) as a finite float64 array of ``shape``; None if it is not one."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (ValueError, TypeError, OverflowError):
+        return None
+    return a if a.shape == shape and np.isfinite(a).all() and not isinstance(value, bool) else None
+
+
 def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: Path) -> tuple[float, np.ndarray,
                                                                                                 np.ndarray, str]:
     """(scale, R [3, 3], t [3], how) of ENU = s R x + t."""
     if sidecar.get("enu_from_colmap") is not None:
-        m = np.asarray(sidecar["enu_from_colmap"], float)
-        if m.shape != (4, 4) or not np.isfinite(m).all():
+        m = _number_array(sidecar["enu_from_colmap"], (4, 4))
+        if m is None:
             raise UserError("expected a 4 x 4 similarity matrix", file=where, field="enu_from_colmap")
         s = float(np.cbrt(np.linalg.det(m[:3, :3])))
         r = m[:3, :3] / s
@@ -112,7 +121,17 @@ def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: P
     pos = sidecar.get("camera_positions_enu")
     if pos is None:
         return 1.0, np.eye(3), np.zeros(3), "none (COLMAP frame taken as ENU metres)"
-    pairs = [(c2w[stems.index(k)][:3, 3], np.asarray(v, float)) for k, v in pos.items() if k in stems]
+    if not isinstance(pos, dict):
+        raise UserError("expected an object {image stem: [east, north, up] metres}", file=where,
+                        field="camera_positions_enu")
+    pairs = []
+    for k, v in pos.items():
+        xyz = _number_array(v, (3,))
+        if xyz is None:
+            raise UserError(f"expected [east, north, up] as three finite numbers (metres), got {str(v)[:60]}",
+                            file=where, field=f"camera_positions_enu.{k}")
+        if k in stems:
+            pairs.append((c2w[stems.index(k)][:3, 3], xyz))
     if len(pairs) < 3:
         raise UserError(f"{len(pairs)} of the named images are in the COLMAP model; a similarity needs 3",
                         file=where, field="camera_positions_enu")
@@ -155,10 +174,7 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
         raise UserError(f"the cube folder must lie inside the project folder {project}", file=images)
     sidecar = {}
     if sidecar_path is not None:
-        try:
-            sidecar = json.loads(Path(sidecar_path).read_text())
-        except (OSError, ValueError) as exc:
-            raise UserError(f"not a readable JSON sidecar ({exc})", file=sidecar_path) from None
+        sidecar = read_json_file(Path(sidecar_path), "JSON sidecar")
         if not isinstance(sidecar, dict):
             raise UserError("expected a JSON object", file=sidecar_path)
     model = read_model(sparse)
