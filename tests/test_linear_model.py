@@ -95,3 +95,22 @@ def test_both_decode_orders_give_the_same_spectra():
         per_gaussian = render(tm, cam, features=spectral_features(tm, omega_i, "gaussian"), backend="torch")
         literal = pixel_spectra(tm, per_gaussian.image, torch.as_tensor(per_gaussian.alpha), "gaussian")
         np.testing.assert_allclose(literal, rv.cube, atol=2e-6 * np.abs(rv.cube).max())
+
+
+def test_bench_view_times_the_linear_basis_beside_the_autoencoder(tmp_path, capsys):
+    """`brfgs bench view` (what it reports, not speed): the linear basis in the same rounds, its source
+    stated; a model that has a linear basis is timed against an autoencoder of the same size."""
+    from brfgs.analysis.bench import bench_view
+    from brfgs.cli import main
+
+    out = tmp_path / "view.json"
+    assert main(["bench", "view", "--gaussians", "400", "--size", "16", "--repeats", "1", "--threads", "1",
+                 "--json", str(out)]) == 0
+    assert "linear basis:" in capsys.readouterr().out
+    res = json.loads(out.read_text())
+    v = res["views"][0]
+    assert v["linear"]["median_s"] > 0 and v["linear"]["median_decode_s"] > 0
+    assert v["linear_decode_speedup_vs_fused"] == v["fused"]["median_decode_s"] / v["linear"]["median_decode_s"]
+    assert "z_iso" in res["bases"]["linear_basis"] and 0 <= res["bases"]["linear_fit_sam_mean_rad"] < 0.1
+    own = bench_view(linear_model().save(tmp_path / "lin.safetensors"), sizes=(12,), repeats=1, backend="torch")
+    assert "untrained" in own["bases"]["autoencoder"] and own["views"][0]["linear"]["median_s"] > 0
