@@ -2,10 +2,11 @@
 
 A :class:`TrainedModel` is the Gaussians (:class:`brfgs.model.gaussians.GaussianModel`), the
 appearance head (:class:`brfgs.brdf.head.HeadConfig` or the neural head), the spectral decoder
-(eq. 13: the autoencoder or a linear basis), the learned background, the scene description (wavelengths, acquisition sun,
-intrinsics, frames with poses and split; :func:`brfgs.model.camera.scene_description`) and the
-training options, stored as ``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON
-metadata with a schema version, validated on load by :mod:`brfgs.model.schema`; no code runs).
+(eq. 13: the autoencoder or a linear basis), the learned background, the scene description
+(wavelengths, acquisition sun, intrinsics, frames with poses and split;
+:func:`brfgs.model.camera.scene_description`) and the training options, stored as
+``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON metadata with a schema version,
+validated on load by :mod:`brfgs.model.schema`; no code runs).
 :func:`brfgs.model.view.render` renders it from any camera.
 """
 

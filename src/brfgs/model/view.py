@@ -167,7 +167,7 @@ def render(
         rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
     elif not custom and model.spectral:
         latent = composite_background(out.image, out.alpha, model.bg_latent)  # [H, W, d]
-        rv.latent = latent.numpy().astype(np.float32)
+        rv.latent = latent.numpy().astype(np.float32, copy=False)  # a view of the float32 planes: no copy
         if decode:
             rv.cube = _decode_hits(model, latent, out.alpha)
             rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
