@@ -5,12 +5,17 @@ synthetic model of the same shape as a 128-px testsite run: ``n_gaussians`` Gaus
 over a 120 m × 120 m undulating surface with tree-like clusters, latent d = 16, a
 164-band spectral autoencoder (untrained weights: the cost does not depend on them).
 Reported: the median of ``repeats`` runs after one warm-up (numba loads its compiled
-kernels on first use).
+kernels on first use). ``bench view`` also times the same model with a linear spectral basis
+(D(z) = W z + b, :mod:`brfgs.spectral.linear_basis`) of the same latent size: fitted to the
+autoencoder's decoded spectra of the model's own Gaussians' isotropic latents (random latents for
+the synthetic model); a model that has a linear basis is timed against an untrained autoencoder of
+the same size (the decoders' cost does not depend on their weights).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import platform
@@ -33,8 +38,10 @@ from brfgs.data.cameras import Intrinsics, pose_from_view_angles
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.model.gaussians import GaussianModel
 from brfgs.render.bench import accelerator_record
-from brfgs.spectral.autoencoder import SpectralAutoencoder
+from brfgs.spectral.autoencoder import SpectralAutoencoder, spectral_angle_torch
+from brfgs.spectral.decoders import is_linear
 from brfgs.spectral.fast_decode import reference_decoding
+from brfgs.spectral.linear_basis import fit_linear_basis
 
 __all__ = ["synthetic_model", "bench_camera", "bench_analysis", "bench_view"]
 
@@ -184,31 +191,58 @@ def _peak_rss_mib() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _view_rounds(tm: TrainedModel, cam, repeats: int, backend: str) -> dict:
-    """Alternating rounds of the view with the fused decoder and with the reference decoder (the same
-    load for both); medians of wall time and of the render's own split, and their largest difference."""
-    def view():
-        return render(tm, cam, normals=True, backend=backend)
+def _bases(tm: TrainedModel, seed: int = 0, max_spectra: int = 20_000) -> tuple[TrainedModel, TrainedModel, dict]:
+    """(the model with the autoencoder, the model with a linear basis, how the other one was made)."""
+    d, n_bands = tm.gaussians.latent_dim, len(tm.wavelengths_nm)
+    if is_linear(tm.decoder):
+        torch.manual_seed(seed)
+        ae = SpectralAutoencoder(n_bands, d).eval().requires_grad_(False)
+        return dataclasses.replace(tm, decoder=ae), tm, {"autoencoder": "untrained, same size (cost only)"}
+    params = tm.head_params()
+    g = torch.Generator().manual_seed(seed)
+    if "z_iso" in params:
+        z, source = params["z_iso"], "the autoencoder's decoded spectra of the model's Gaussians' z_iso"
+        z = z[torch.randperm(z.shape[0], generator=g)[:max_spectra]]
+    else:
+        z, source = torch.randn(max_spectra, d, generator=g), "the autoencoder's decoded spectra of N(0, 1) latents"
+    with torch.no_grad():
+        spectra = tm.decoder.decode(z.float())
+        basis = fit_linear_basis(spectra.double().numpy(), d).requires_grad_(False)
+        sam = spectral_angle_torch(basis(spectra)[0].double(), spectra.double())
+    info = {"linear_basis": source, "n_spectra": int(z.shape[0]), "linear_fit_sam_mean_rad": float(sam.mean())}
+    return tm, dataclasses.replace(tm, decoder=basis), info
 
-    fused, ref = view(), None
-    with reference_decoding():
-        ref = view()                                              # warm-ups, and the two results compared
-    times = {"fused": [], "reference": []}
-    split = {"fused": [], "reference": []}
+
+def _view_rounds(tm: TrainedModel, cam, repeats: int, backend: str, linear: TrainedModel | None = None) -> dict:
+    """Alternating rounds of the view with the fused decoder, the reference decoder and (``linear``: the
+    same model with a linear basis) the linear basis, under the same load; medians of wall time and of
+    the render's own split, and their ratios."""
+    models = {"fused": tm, "reference": tm} if linear is None else {"fused": tm, "reference": tm, "linear": linear}
+
+    def view(name):
+        with reference_decoding() if name == "reference" else contextlib.nullcontext():
+            return render(models[name], cam, normals=True, backend=backend)
+
+    first = {name: view(name) for name in models}                 # warm-ups, and the results compared
+    times = {name: [] for name in models}
+    split = {name: [] for name in models}
     for _ in range(repeats):
-        for name in ("fused", "reference"):
-            with reference_decoding() if name == "reference" else contextlib.nullcontext():
-                t0 = time.perf_counter()
-                rv = view()
-                times[name].append(time.perf_counter() - t0)
-                split[name].append(rv.timings_s)
+        for name in models:
+            t0 = time.perf_counter()
+            rv = view(name)
+            times[name].append(time.perf_counter() - t0)
+            split[name].append(rv.timings_s)
     out = {name: {"median_s": statistics.median(t), "all_s": t,
                   "median_rasterize_s": statistics.median(x["rasterize_s"] for x in split[name]),
                   "median_decode_s": statistics.median(x["decode_s"] for x in split[name])}
            for name, t in times.items()}
     out["speedup_vs_reference"] = out["reference"]["median_s"] / out["fused"]["median_s"]
     out["decode_speedup_vs_reference"] = out["reference"]["median_decode_s"] / out["fused"]["median_decode_s"]
-    out["max_abs_diff_vs_reference"] = float(np.abs(fused.cube - ref.cube).max()) if fused.cube is not None else None
+    cube = first["fused"].cube
+    out["max_abs_diff_vs_reference"] = float(np.abs(cube - first["reference"].cube).max()) if cube is not None else None
+    if linear is not None:
+        out["linear_speedup_vs_fused"] = out["fused"]["median_s"] / out["linear"]["median_s"]
+        out["linear_decode_speedup_vs_fused"] = out["fused"]["median_decode_s"] / out["linear"]["median_decode_s"]
     return out
 
 
@@ -224,19 +258,26 @@ def _simulator_view_s(size: int, n_bands: int) -> float:
 
 def bench_view(model: str | Path | None = None, *, n_gaussians: int = 50_000, sizes: tuple[int, ...] = (128,),
                repeats: int = 5, backend: str = "cpu", simulator: bool = False) -> dict:
-    """Time one arbitrary 164-band view (cube, CIR, depth, normals) per size, with the fused decoder and the
-    reference decoder in alternating rounds of the same run; optionally the simulator's time for the same
-    view size and bands. Returns a JSON-ready dict."""
+    """Time one arbitrary 164-band view (cube, CIR, depth, normals) per size, with the fused decoder, the
+    reference decoder and a linear spectral basis of the same size in alternating rounds of the same run
+    (module docstring); optionally the simulator's time for the same view size and bands. Returns a
+    JSON-ready dict."""
     tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
     load_before = os.getloadavg()
+    bases = None
+    if tm.spectral:
+        ae_model, linear_model, bases = _bases(tm)
     rows = []
     for size in sizes:
         c2w, intr = bench_camera(tm, size)
-        row = {"size": [intr.w, intr.h], **_view_rounds(tm, camera_from_intrinsics(c2w, intr), repeats, backend)}
+        cam = camera_from_intrinsics(c2w, intr)
+        rounds = _view_rounds(ae_model, cam, repeats, backend, linear_model) if tm.spectral else \
+            _view_rounds(tm, cam, repeats, backend)
+        row = {"size": [intr.w, intr.h], **rounds}
         if simulator and tm.spectral:
             row["simulator_view_s"] = _simulator_view_s(size, len(tm.wavelengths_nm))
             row["speedup_vs_simulator"] = row["simulator_view_s"] / row["fused"]["median_s"]
         rows.append(row)
     return {"machine": machine_record(backend, load_before), "model": "synthetic" if model is None else str(model),
             "n_gaussians": tm.n_gaussians, "bands": len(tm.wavelengths_nm), "latent_dim": tm.gaussians.latent_dim,
-            "repeats": repeats, "views": rows, "peak_rss_mib": _peak_rss_mib()}
+            "repeats": repeats, "bases": bases, "views": rows, "peak_rss_mib": _peak_rss_mib()}

@@ -119,9 +119,9 @@ def bench_analysis_cmd(options: dict | None = None) -> None:
 
 @config_command(bench_app, "view", BenchViewOptions)
 def bench_view_cmd(options: dict | None = None) -> None:
-    """One arbitrary 164-band view per size: the fused decoder against the reference decoder in
-    alternating rounds of one run (ratio, split rasterize/decode, largest difference), optionally the
-    simulator's time for the same view (BENCHMARKS.md)."""
+    """One arbitrary 164-band view per size: the fused decoder against the reference decoder and a linear
+    spectral basis of the same size in alternating rounds of one run (ratios, split rasterize/decode,
+    largest difference), optionally the simulator's time for the same view (BENCHMARKS.md)."""
     from brfgs.analysis.bench import bench_view
     from brfgs.render import configure_threads
 
@@ -142,6 +142,14 @@ def bench_view_cmd(options: dict | None = None) -> None:
                    f"view, x{r['decode_speedup_vs_reference']:.2f} decode; max |diff| {r['max_abs_diff_vs_reference']:.1e}"
                    + (f"; simulator {r['simulator_view_s']:.1f} s (x{r['speedup_vs_simulator']:.0f})"
                       if "simulator_view_s" in r else ""))
+        if "linear" in r:
+            li = r["linear"]
+            typer.echo(f"  linear basis: {li['median_s'] * 1e3:.0f} ms (rasterize {li['median_rasterize_s'] * 1e3:.0f} + "
+                       f"decode {li['median_decode_s'] * 1e3:.0f}): x{r['linear_speedup_vs_fused']:.2f} view, "
+                       f"x{r['linear_decode_speedup_vs_fused']:.2f} decode against the fused autoencoder")
+    if res.get("bases"):
+        typer.echo("bases: " + "; ".join(f"{k}: {v:.4g}" if isinstance(v, float) else f"{k}: {v}"
+                                         for k, v in res["bases"].items()))
     typer.echo(f"peak RSS {res['peak_rss_mib']:.0f} MiB")
     if o.json is not None:
         _write_json(o.json, res)

@@ -3,12 +3,13 @@
 Loading never executes code: :func:`load` uses ``safetensors`` (no pickle). Files are
 self-describing: the metadata string ``brfgs`` holds the schema version, the training
 config, the scene description (wavelengths, sun angles, intrinsics, frames with poses and
-split), the band selection, CIR scale, the appearance head and the autoencoder
-architecture, so a model renders without the training scene
-(:class:`brfgs.model.trained.TrainedModel`).
+split), the band selection, CIR scale, the appearance head and the spectral decoder
+(``spectral_basis``: "autoencoder" or "linear" — files without it hold the autoencoder — and its
+description under ``autoencoder`` or ``linear_basis``), so a model renders without the training
+scene (:class:`brfgs.model.trained.TrainedModel`).
 
 Tensor name prefixes: ``param.`` Gaussian tensors, ``extra.`` non-per-Gaussian parameters
-(backgrounds), ``decoder.`` spectral autoencoder, ``neural.`` neural head; checkpoints add
+(backgrounds), ``decoder.`` spectral decoder, ``neural.`` neural head; checkpoints add
 ``optim.`` Adam moments, ``densify.`` densification statistics, ``rng.`` generator state.
 """
 

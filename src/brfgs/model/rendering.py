@@ -13,7 +13,9 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from brfgs.spectral.decoders import is_linear
 from brfgs.spectral.fast_decode import can_fast_decode, fast_decode
+from brfgs.spectral.fast_linear import linear_decode
 from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
 from brfgs.render import RenderOutput, rasterize
@@ -79,12 +81,15 @@ def composite_background(
 
 
 def decode_image(decoder, latent: Tensor, chunk: int = 1 << 16) -> Tensor:
-    """Decode latent vectors [..., d] to reflectance [..., B] pixel by pixel (eq. 13): through
-    :func:`brfgs.spectral.fast_decode.fast_decode` when the decoder's weights need no gradient (a frozen or
-    loaded decoder), else through ``decoder.decode`` (the reference) in chunks of ``chunk`` vectors (the
-    decoder is per pixel: chunking does not change the result)."""
+    """Decode latent vectors [..., d] to reflectance [..., B] pixel by pixel (eq. 13). A linear basis:
+    one matrix product per pixel (:func:`brfgs.spectral.fast_linear.linear_decode`, differentiable in the
+    latent and the basis). The autoencoder: through :func:`brfgs.spectral.fast_decode.fast_decode` when its
+    weights need no gradient (a frozen or loaded decoder), else through ``decoder.decode`` (the reference)
+    in chunks of ``chunk`` vectors (the decoder is per pixel: chunking does not change the result)."""
     shape, d = latent.shape[:-1], latent.shape[-1]
     flat = latent.reshape(-1, d)
+    if is_linear(decoder):
+        return linear_decode(decoder, flat).reshape(*shape, -1)
     if can_fast_decode(decoder, flat):                   # the fused kernels (same map, gradient to the latent)
         return fast_decode(decoder, flat).reshape(*shape, -1)
     if flat.shape[0] <= chunk:

@@ -14,6 +14,7 @@ from torch import Tensor
 
 from brfgs.errors import UserError
 from brfgs.model.gaussians import APPEARANCES, GEOMETRY_KEYS
+from brfgs.spectral.decoders import DESCRIPTION_KEYS, SPECTRAL_BASES
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 
@@ -67,7 +68,10 @@ def check_metadata(meta: dict, path: Path) -> None:
     _check(isinstance(cs, list) and len(cs) == 3 and all(_number(v) and v > 0 for v in cs),
            "expected three positive numbers", path, "cir_scale")
     if meta["appearance"] != "cir":
-        _check(isinstance(meta.get("autoencoder"), str), "expected the autoencoder description", path, "autoencoder")
+        basis = meta.get("spectral_basis", "autoencoder")  # files written before the linear basis: the autoencoder
+        _check(basis in SPECTRAL_BASES, f"expected one of {', '.join(SPECTRAL_BASES)}", path, "spectral_basis")
+        key = DESCRIPTION_KEYS[basis]
+        _check(isinstance(meta.get(key), str), f"expected the {basis} decoder's description", path, key)
 
 
 def check_tensors(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:

@@ -2,16 +2,16 @@
 
 A :class:`TrainedModel` is the Gaussians (:class:`brfgs.model.gaussians.GaussianModel`), the
 appearance head (:class:`brfgs.brdf.head.HeadConfig` or the neural head), the spectral decoder
-(eq. 13), the learned background, the scene description (wavelengths, acquisition sun,
-intrinsics, frames with poses and split; :func:`brfgs.model.camera.scene_description`) and the
-training options, stored as ``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON
-metadata with a schema version, validated on load by :mod:`brfgs.model.schema`; no code runs).
+(eq. 13: the autoencoder or a linear basis), the learned background, the scene description
+(wavelengths, acquisition sun, intrinsics, frames with poses and split;
+:func:`brfgs.model.camera.scene_description`) and the training options, stored as
+``model.safetensors`` (:mod:`brfgs.model.io`: safetensors + JSON metadata with a schema version,
+validated on load by :mod:`brfgs.model.schema`; no code runs).
 :func:`brfgs.model.view.render` renders it from any camera.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -32,7 +32,8 @@ from brfgs.model.features import HEAD_PARAM_KEYS, NeuralHead
 from brfgs.model.gaussians import GaussianModel
 from brfgs.model.rendering import decode_image
 from brfgs.model.schema import check_metadata, check_tensors
-from brfgs.spectral.autoencoder import SpectralAutoencoder, autoencoder_from_state, autoencoder_state
+from brfgs.spectral.decoders import (DESCRIPTION_KEYS, SpectralDecoder, decoder_from_state, decoder_metadata,
+                                    decoder_state, is_linear)
 
 MODEL_FILE = "model.safetensors"
 
@@ -49,6 +50,10 @@ class RenderSettings:
     decode_order: "pixel" (blend latents, decode each pixel) or "gaussian" (paper eq. 13: decode each
     Gaussian, blend spectra); antialias: Mip-Splatting's 2D opacity compensation; supersample: sub-pixel
     samples per pixel side (each pixel the mean of s x s samples).
+
+    A model with a linear spectral basis (D(z) = W z + b) renders "pixel" whatever it was trained with:
+    for an affine decoder the two orders give the same spectra up to float rounding (the blending
+    weights and the background's 1 − α sum to one), and blending d latents is cheaper than B spectra.
     """
 
     decode_order: str = "pixel"
@@ -56,10 +61,10 @@ class RenderSettings:
     supersample: int = 1
 
     @classmethod
-    def from_training_options(cls, config: dict, spectral: bool = True) -> "RenderSettings":
+    def from_training_options(cls, config: dict, spectral: bool = True, linear: bool = False) -> "RenderSettings":
         """The settings of a model trained with the options ``config`` (a config.json dict; options it
-        predates take the value they had before they existed)."""
-        return cls(decode_order=str(config.get("decode", "pixel")) if spectral else "pixel",
+        predates take the value they had before they existed); ``linear``: its spectral basis is linear."""
+        return cls(decode_order=str(config.get("decode", "pixel")) if spectral and not linear else "pixel",
                    antialias=bool(config.get("antialias", False)), supersample=int(config.get("supersample", 1)))
 
 
@@ -74,7 +79,7 @@ class TrainedModel:
 
     gaussians: GaussianModel
     head_cfg: HeadConfig | None         # None: the neural head
-    decoder: SpectralAutoencoder | None  # None: the CIR variant
+    decoder: SpectralDecoder | None  # the autoencoder or a LinearBasis; None: the CIR variant
     scene: dict
     config: dict = field(default_factory=dict)  # training options (brfgs.train.config.TrainConfig.to_dict())
     extra: dict[str, Tensor] = field(default_factory=dict)  # bg_latent [d] / bg_colors [C]
@@ -157,7 +162,7 @@ class TrainedModel:
     @cached_property
     def render_settings(self) -> "RenderSettings":
         """How the model renders: as it was trained (:class:`RenderSettings`)."""
-        return RenderSettings.from_training_options(self.config, self.spectral)
+        return RenderSettings.from_training_options(self.config, self.spectral, is_linear(self.decoder))
 
     def frame_sun(self, i: int) -> tuple[float, float]:
         """(zenith, azimuth) deg of training frame ``i``'s own sun (brfgs.data.sun), else the scene's."""
@@ -278,7 +283,7 @@ class TrainedModel:
         t = io.prefixed(self.gaussians.state(), "param.")
         t.update(io.prefixed({k: v.detach() for k, v in self.extra.items()}, "extra."))
         if self.decoder is not None:
-            t.update(autoencoder_state(self.decoder, "decoder.")[0])
+            t.update(decoder_state(self.decoder, "decoder.")[0])
         if self.neural is not None:
             t.update(io.prefixed(self.neural.state_dict(), "neural."))
         return t
@@ -290,8 +295,10 @@ class TrainedModel:
                   "latent_dim": self.gaussians.latent_dim, "n_colors": self.gaussians.n_colors,
                   "n_gaussians": self.gaussians.n,
                   "head": self.head_cfg.to_dict() if self.head_cfg is not None else {"kind": "neural", "hidden": 64}})
+        for key in ("spectral_basis", *DESCRIPTION_KEYS.values()):
+            m.pop(key, None)
         if self.decoder is not None:
-            m["autoencoder"] = json.dumps(self.decoder.describe())
+            m.update(decoder_metadata(self.decoder))  # spectral_basis and the decoder's description
         return m
 
     def save(self, path: str | Path) -> Path:
@@ -306,7 +313,7 @@ class TrainedModel:
         try:
             gm = GaussianModel(io.with_prefix(tensors, "param."), meta["appearance"], meta["latent_dim"], meta["n_colors"])
             head_cfg = head_config_from_dict(meta["head"])
-            decoder = autoencoder_from_state(tensors, meta, "decoder.") if meta["appearance"] != "cir" else None
+            decoder = decoder_from_state(tensors, meta, "decoder.") if meta["appearance"] != "cir" else None
             neural = None
             if meta["appearance"] == "neural" and any(k.startswith("neural.") for k in tensors):
                 neural = NeuralHead(meta["latent_dim"])

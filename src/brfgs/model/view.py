@@ -10,7 +10,8 @@ model's decode order (:class:`brfgs.model.trained.RenderSettings`):
 - ``"gaussian"`` — eq. 13 as published: r_k = D_φ(z_k(ω_i, ω_o)) per Gaussian, then the spectra
   are alpha-blended (B channels rasterized);
 - ``"pixel"`` — the latents are alpha-blended and each pixel decoded, D_φ(Σ_k w_k z_k) (d
-  channels rasterized). With a nonlinear decoder the two differ.
+  channels rasterized). With a nonlinear decoder the two differ; with a linear basis
+  (D(z) = W z + b) they are the same, and :func:`render` always blends latents.
 
 Training uses the same pieces (:mod:`brfgs.model.rendering`) with gradients.
 """
@@ -30,6 +31,7 @@ from brfgs.model.camera import Camera
 from brfgs.model.rendering import (FeaturesFn, composite_background, decode_image, frustum_subset,
                                    rasterize_splats)
 from brfgs.model.trained import TrainedModel
+from brfgs.spectral.decoders import is_linear
 from brfgs.render import RenderOutput
 
 
@@ -108,10 +110,10 @@ def pixel_spectra(model: TrainedModel, image: Tensor, alpha: Tensor, order: str 
 
 def _decode_hits(model: TrainedModel, latent: Tensor, alpha: Tensor) -> np.ndarray:
     """Decoded cube [..., B] of latents [..., d]; pixels showing only the background share one
-    decoded spectrum."""
+    decoded spectrum (a linear basis decodes every pixel: one product per pixel costs less than the copies)."""
     bg = model.bg_latent
     hit = alpha > 0
-    if bg is None or bool(hit.all()):
+    if bg is None or is_linear(model.decoder) or bool(hit.all()):
         return decode_image(model.decoder, latent).numpy()
     bg_spec = decode_image(model.decoder, bg.to(latent.dtype)[None])[0].numpy()  # [B]
     cube = np.broadcast_to(bg_spec, tuple(latent.shape[:-1]) + bg_spec.shape).copy()
@@ -142,7 +144,8 @@ def render(
     formed; the CIR variant renders its CIR colours directly. With ``features(idx, omega_o) -> [n, C]``
     any per-Gaussian quantity (kernel contributions, NBAR latents, ...) is rasterized instead
     and returned raw in ``image``. ``cull`` drops Gaussians that cannot touch the image first
-    (same image, less work).
+    (same image, less work). A model with a linear spectral basis blends latents in either order
+    (the same spectra, :class:`brfgs.model.trained.RenderSettings`).
     """
     t0 = time.perf_counter()
     omega_i = model.sun_direction(sun_zenith_deg, sun_azimuth_deg)  # [3]
@@ -150,6 +153,8 @@ def render(
     order = "pixel" if not model.spectral else (decode_order or model.render_settings.decode_order)
     if order not in ("pixel", "gaussian"):
         raise ValueError(f"decode_order must be pixel or gaussian, got {order!r}")
+    if is_linear(model.decoder):
+        order = "pixel"  # affine decoding: blending latents gives the spectra of blending decoded Gaussians
     by_gaussian = not custom and decode and order == "gaussian"
     if not custom:
         features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel") if model.spectral else (
@@ -162,7 +167,7 @@ def render(
         rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
     elif not custom and model.spectral:
         latent = composite_background(out.image, out.alpha, model.bg_latent)  # [H, W, d]
-        rv.latent = latent.numpy().astype(np.float32)
+        rv.latent = latent.numpy().astype(np.float32, copy=False)  # a view of the float32 planes: no copy
         if decode:
             rv.cube = _decode_hits(model, latent, out.alpha)
             rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)

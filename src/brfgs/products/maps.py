@@ -25,6 +25,11 @@ training, decoded per pixel by the spectral decoder D, eq. 13):
 - anisotropy index ANIX = max / min of the BRF over the principal plane (view zenith
   −75…75°, sun at the chosen zenith), per pixel and band (Sandmeier et al. 1998).
 
+With a linear spectral basis (D(z) = W z + b) every product here is exact (the decoder is affine),
+and each Gaussian's MODIS kernel weights per band are W z_iso + b, W z_vol, W z_geo (W z_spec the
+specular weight; :func:`gaussian_kernel_weights`), which :mod:`brfgs.products.mcd43_maps` renders
+instead of fitting.
+
 Pure per-Gaussian functions (:func:`nbar_latent`, :func:`albedo_latent`, ...) are separate
 from rendering so they can be tested directly.
 """
@@ -50,11 +55,13 @@ from brfgs.data.cameras import Intrinsics
 from brfgs.errors import UserError
 from brfgs.model import Camera, TrainedModel, render
 from brfgs.model.rendering import FeaturesFn, composite_background
+from brfgs.spectral.decoders import is_linear
 
 __all__ = [
     "COMPONENT_ORDER",
     "require_hybrid",
     "component_latents",
+    "gaussian_kernel_weights",
     "nbar_latent",
     "spec_integrals",
     "albedo_latent",
@@ -107,6 +114,24 @@ def component_latents(
             continue
         z = p[f"z_{c}"]
         out[c] = z if c == "iso" else z * ks[c].unsqueeze(-1).to(z.dtype)
+    return out
+
+
+@torch.no_grad()
+def gaussian_kernel_weights(tm: TrainedModel, idx: Tensor | None = None) -> dict[str, Tensor]:  # {name: [n, B]}
+    """Per-band kernel weights of Gaussians ``idx`` (all if None) of a model with a linear spectral basis:
+    {"f_iso": W z_iso + b, "f_vol": W z_vol, "f_geo": W z_geo, "f_spec": W z_spec} for its enabled terms
+    (f_iso is b without an iso term). Its BRF in band j is f_iso + f_vol K_Ross + f_geo K_Li + f_spec K_Cook."""
+    require_hybrid(tm)
+    if not is_linear(tm.decoder):
+        raise UserError("exact kernel weights need a model with a linear spectral basis", field="model")
+    p = tm.head_params(idx)
+    n = tm.n_gaussians if idx is None else int(idx.numel())
+    z_iso = p.get("z_iso", torch.zeros(n, tm.gaussians.latent_dim))
+    out = {"f_iso": tm.decoder.decode(z_iso)}
+    for c in ("vol", "geo", "spec"):
+        if c in tm.head_cfg.components:
+            out[f"f_{c}"] = tm.decoder.decode_weights(p[f"z_{c}"])
     return out
 
 

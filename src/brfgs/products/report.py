@@ -36,7 +36,7 @@ from brfgs.data import atomic
 
 __all__ = ["ProductsOptions", "products_report", "PRODUCT_NAMES", "write_product_files"]
 
-PRODUCT_NAMES = ("iso", "vol", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix") + MCD43_NAMES
+PRODUCT_NAMES = ("iso", "vol", "geo", "spec", "total", "nbar", "bsa", "wsa", "anix") + MCD43_NAMES + ("f_spec",)
 _REFLECTANCES = ("iso", "total", "nbar", "bsa", "wsa", "f_iso", "nbar_mcd43", "bsa_mcd43", "wsa_mcd43")  # CIR
 _NOT_SIGNED = ("anix", "fit_rmse")
 _MAP_BAND_NM = 860.0
@@ -50,6 +50,7 @@ def _descriptions(nbar_sun_zenith_deg: float, albedo_sun_zenith_deg: float) -> d
             "wsa": "white-sky albedo", "anix": "anisotropy index max/min BRF over the principal plane",
             "f_iso": "MCD43 isotropic weight f_iso", "f_vol": "MCD43 RossThick weight f_vol",
             "f_geo": "MCD43 LiSparse-R weight f_geo", "fit_rmse": "RMSE of the MCD43 kernel fit to the model BRF",
+            "f_spec": "Cook-Torrance (specular) weight f_spec",
             "nbar_mcd43": f"MCD43 NBAR from f (sun zenith {nbar_sun_zenith_deg:g} deg)",
             "bsa_mcd43": f"MCD43 black-sky albedo from f (sun zenith {albedo_sun_zenith_deg:g} deg)",
             "wsa_mcd43": "MCD43 white-sky albedo from f"}
@@ -176,7 +177,7 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
         t1 = time.perf_counter()
         fit = render_mcd43(tm, camera_from_intrinsics(c2w, intr), nbar_sun_zenith_deg=nz, albedo_sun_zenith_deg=az,
                            backend=opts.backend, min_alpha=opts.min_alpha, progress=opts.progress)
-        res.update({k: fit[k] for k in MCD43_NAMES})
+        res.update({k: fit[k] for k in MCD43_NAMES + ("f_spec",) if k in fit})
         res["settings"]["mcd43"] = fit["settings"]
         res["settings"]["mcd43"]["fit_seconds"] = time.perf_counter() - t1
     files = write_product_files(out, tm, res, _descriptions(nz, az), grid)
@@ -192,8 +193,11 @@ def products_report(run: str | Path, opts: ProductsOptions | None = None, out: s
                       "integrals assume a horizontal facet", f"NaN where the accumulated opacity < {opts.min_alpha:g}"]}
     if opts.mcd43:
         info["mcd43_fit_rmse_per_band"] = _rmse_per_band(res["fit_rmse"], wl)
-        info["notes"].append("f_iso/f_vol/f_geo: RossThick-LiSparse-R weights fitted per pixel and band to the model's "
-                             "BRF over settings.mcd43.grid; *_mcd43 products are computed from them as MCD43 does")
+        info["notes"].append(("f_iso/f_vol/f_geo/f_spec: the model's own kernel weights per band (linear spectral basis), "
+                              "rendered; fit_rmse: the specular lobe over settings.mcd43.grid"
+                              if res["settings"]["mcd43"]["method"] == "exact" else
+                              "f_iso/f_vol/f_geo: RossThick-LiSparse-R weights fitted per pixel and band to the model's "
+                              "BRF over settings.mcd43.grid") + "; *_mcd43 products are computed from them as MCD43 does")
     if opts.check_decoder:
         info["decoder_check"] = P.decoder_nonlinearity(tm, az)
     atomic.write_json(out / "products.json", info)

@@ -10,7 +10,8 @@ convolutions; the linear branch ``dec_lin`` needs its rows ``bands``. The result
 (interpolated) fall back to the full decode. Each band is decoded through its own small dense
 matrices (a band's two up1 positions read at most three dec_fc positions), pixels in blocks that
 stay in the cache: 3x the previous single set of dense products over all the bands' positions
-for a CIR frame at 256² (`brfgs bench viewer`, BENCHMARKS.md).
+for a CIR frame at 256² (`brfgs bench viewer`, BENCHMARKS.md). A linear basis decodes band o as one
+dot product, W[o] · z + b[o].
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from brfgs.spectral.linear_basis import LinearBasis
 
 __all__ = ["decode_bands"]
 
@@ -64,11 +67,16 @@ def _band_plan(ae, o: int) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
 
 @torch.no_grad()
 def decode_bands(ae, z: Tensor, bands: Sequence[int]) -> Tensor:  # [..., nb]
-    """Reflectance in bands ``bands`` [nb] of latents ``z`` [..., d]: ``ae.decode(z)[..., bands]``.
+    """Reflectance in bands ``bands`` [nb] of latents ``z`` [..., d]: ``ae.decode(z)[..., bands]`` (``ae``
+    the autoencoder or a :class:`LinearBasis`).
 
     Each band is decoded on its own (its ≤ 3 dec_fc positions, ≤ 2 up1 positions), in blocks of
     :data:`BLOCK_PX` pixels."""
     bands = [int(b) for b in bands]
+    if isinstance(ae, LinearBasis):  # one dot product per band
+        idx = torch.tensor(bands, dtype=torch.long)
+        w, b = ae.weight[idx], ae.bias[idx]
+        return F.linear(z, w.to(z.dtype), b.to(z.dtype))
     if 4 * ae._L2 < ae.n_bands:  # the conv branch is interpolated to B: no shortcut
         return ae.decode(z)[..., bands]
     shp = z.shape[:-1]

@@ -22,6 +22,7 @@ VARIANTS = ("brf", "sh", "neural", "cir")
 DECODE_ORDERS = ("pixel", "gaussian")
 INIT_FILLS = ("surface", "mvs", "truth")
 BACKENDS = ("auto", "torch", "cpu", "cuda")  # brfgs.render.BACKENDS (a test keeps them equal; no render import here)
+SPECTRAL_BASES = ("autoencoder", "linear")  # brfgs.spectral.decoders.SPECTRAL_BASES (this module loads no torch)
 MAX_SUPERSAMPLE = 4  # --supersample: at most 4 x 4 sub-pixel samples per pixel (brfgs.render.supersample)
 FORMAT_VERSION = 2  # of config.json (and the options stored in checkpoints and model files)
 
@@ -116,6 +117,8 @@ class TrainConfig:
                                 "--learn-background/--fixed-background")
     finetune_decoder: bool = _x(False, "Also optimise the spectral decoder in stage 2.",
                                 "--finetune-decoder/--frozen-decoder")
+    spectral_basis: str = _x("autoencoder", "Spectral decoder: autoencoder (paper eq. 9) or linear (noise-weighted "
+                             "PCA: each band's BRF the kernel model, exact kernel products).")
     normal_start: float = _x(0.3, "Fraction of a geometry phase after which the surface priors start.")
     ae_steps: int = _x(2400, "Adam steps of the spectral autoencoder.")
     ae_batch: int = _x(1024, "Autoencoder batch size (pixels).")
@@ -161,7 +164,7 @@ class TrainConfig:
         """``self`` when every option is in range; UserError naming the option otherwise."""
         for name, allowed in (("variant", VARIANTS), ("decode", DECODE_ORDERS), ("init_fill", INIT_FILLS),
                               ("strategy", STRATEGIES), ("poses", POSE_MODES), ("band_strategy", BAND_STRATEGIES),
-                              ("backend", BACKENDS)):
+                              ("backend", BACKENDS), ("spectral_basis", SPECTRAL_BASES)):
             if getattr(self, name) not in allowed:
                 raise UserError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}", field=name)
         if not 1 <= self.latent_dim <= 32:

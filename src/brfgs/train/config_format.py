@@ -15,7 +15,7 @@ from brfgs.errors import UserError
 # Options whose default changed after they were added: a file written before the option existed
 # trained with the value here.
 BEFORE_OPTION: dict = {"stage1_kernels": False, "dssim_per_band": False, "lr_head_final": 1.0,
-                       "head_lr_decay_from": 0.0}
+                       "head_lr_decay_from": 0.0, "spectral_basis": "autoencoder"}
 
 # Removed options and the value at which they changed nothing (what format-1 files of today's method
 # hold); ``None``: any value (the option only mattered together with another removed one).

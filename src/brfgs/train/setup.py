@@ -21,6 +21,7 @@ from brfgs.model import DensifyState, init_from_points, scene_description, scene
 from brfgs.model.features import NeuralHead
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
 from brfgs.spectral.fast_encode import encode_spectra
+from brfgs.spectral.linear_basis import fit_linear_basis
 from brfgs.train.config import TrainConfig
 from brfgs.train.dense_depth import FILE as DENSE_DEPTH_FILE, save_dense_depths
 from brfgs.train.images import TrainImages
@@ -135,15 +136,26 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
 
 def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainImages, folder: RunFolder,
                     progress: bool, log) -> None:
-    """Train the spectral autoencoder (eq. 9) on pixels of the training views; report on test pixels."""
+    """Fit the spectral decoder on pixels of the training views and report on test pixels: the
+    autoencoder (eq. 9) or, with ``spectral_basis`` linear, the linear basis (PCA noise-weighted by the
+    scene's dark-frame σ_b, :func:`brfgs.spectral.linear_basis.fit_linear_basis`)."""
     full = images("full")
     loaders = [(lambda i=i: full.get_with_nan(i)) for i in scene.train_indices]
     pix = sample_pixels(loaders, cfg.ae_max_pixels, cfg.seed)
-    acfg = AutoencoderConfig(latent_dim=cfg.latent_dim, steps=cfg.ae_steps, batch_size=cfg.ae_batch,
-                             max_pixels=cfg.ae_max_pixels, seed=cfg.seed)
-    state.decoder, hist = train_autoencoder(pix, acfg, progress=progress)
+    if cfg.spectral_basis == "linear":
+        if cfg.latent_dim > pix.shape[1]:
+            raise UserError(f"a linear basis of {cfg.latent_dim} components needs at least as many bands (the scene "
+                            f"has {pix.shape[1]})", field="latent_dim")
+        state.decoder, hist = fit_linear_basis(pix, cfg.latent_dim, scene.dark_sigma, seed=cfg.seed), []
+        acfg = {"spectral_basis": "linear", "latent_dim": cfg.latent_dim, "pixels": int(pix.shape[0]),
+                "noise_weights": f"dark_sigma ({scene.dark_sigma_source})"}
+    else:
+        acfg = AutoencoderConfig(latent_dim=cfg.latent_dim, steps=cfg.ae_steps, batch_size=cfg.ae_batch,
+                                 max_pixels=cfg.ae_max_pixels, seed=cfg.seed)
+        state.decoder, hist = train_autoencoder(pix, acfg, progress=progress)
+        acfg = acfg.__dict__
     state.decoder.requires_grad_(cfg.finetune_decoder)      # frozen: decoding takes the fused kernels
-    report = {"config": acfg.__dict__, "loss_first": hist[0] if hist else None, "loss_last": hist[-1] if hist else None,
+    report = {"config": acfg, "loss_first": hist[0] if hist else None, "loss_last": hist[-1] if hist else None,
               "train": evaluate_autoencoder(state.decoder, pix)}
     if scene.test_indices:
         test = [(lambda i=i: scene.load_image(i)) for i in scene.test_indices]
@@ -151,7 +163,8 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
     folder.write_json("autoencoder.json", report)
     state.meta["autoencoder_report"] = report
     te = report.get("test", report["train"])
-    log(f"autoencoder d={cfg.latent_dim}: test SAM {te['sam_mean_rad']:.4f} rad, RMSE {te['rmse']:.5f}")
+    name = "linear basis" if cfg.spectral_basis == "linear" else "autoencoder"
+    log(f"{name} d={cfg.latent_dim}: test SAM {te['sam_mean_rad']:.4f} rad, RMSE {te['rmse']:.5f}")
 
 
 def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -> None:
@@ -191,7 +204,7 @@ def run_setup(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, pro
     init = select_and_initialise(state, scene, cfg, folder, progress, log)
     images = TrainImages(scene, state.stage1_bands(), state.meta["cir_indices"], state.meta["cir_scale"], cfg.cache_gib)
     initial_gaussians(state, scene, cfg, init, images, folder, log)
-    if cfg.variant != "cir":  # spectral autoencoder (not for the CIR-only baseline)
+    if cfg.variant != "cir":  # spectral decoder (not for the CIR-only baseline)
         t = time.perf_counter()
         fit_autoencoder(state, scene, cfg, images, folder, progress, log)
         state.timings["autoencoder"] = time.perf_counter() - t

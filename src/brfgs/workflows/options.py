@@ -105,7 +105,7 @@ class BenchAnalysisOptions:
 
 @dataclass
 class BenchViewOptions:
-    """``brfgs bench view``: one 164-band view with the fused and the reference decoder."""
+    """``brfgs bench view``: one 164-band view with the fused and the reference decoder and a linear basis."""
 
     model: Optional[Path] = _b(None, MODEL_HELP)
     gaussians: int = _b(50_000, "Gaussians of the synthetic model.")
