@@ -68,7 +68,7 @@ class TrainConfig:
                        panel=METHOD)
     band_strategy: str = _opt("efc-top3", "Geometry bands for SfM and stage 1 (see brfgs select-bands).", panel=METHOD)
     top: int = _opt(3, "Number of bands the band strategy selects.", panel=METHOD)
-    latent_dim: int = _opt(16, "Latent size of the spectral autoencoder (1-32).", panel=METHOD)
+    latent_dim: int = _opt(16, "Latent size of the spectral decoder (1-32).", panel=METHOD)
     # -- the schedule
     stage1_steps: int = _opt(3000, "Geometry (stage-1) steps for 17 training views.", panel=SCHEDULE)
     stage2_steps: int = _opt(750, "Reflectance (stage-2) steps for 17 training views.", panel=SCHEDULE)
