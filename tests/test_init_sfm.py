@@ -169,7 +169,7 @@ def test_auto_uses_sfm_for_nominal_poses(tmp_path):
 # ----------------------------------------------------------------------------------- zlib trap
 def test_pycolmap_does_not_break_zlib(tmp_path):
     code = f"""
-import brfgs.init.colmap  # imports pycolmap (through brfgs.init, which imports zlib first)
+import brfgs.init.colmap  # imports pycolmap (through brfgs.init.pycolmap_safe: zlib first)
 import numpy as np
 np.savez_compressed({str(tmp_path / 'a.npz')!r}, x=np.arange(1000))
 import cv2
@@ -182,6 +182,16 @@ print('ok')
     assert p.returncode == 0, p.stderr[-2000:]
     assert p.stdout.strip().endswith("ok") and (tmp_path / "a.png").stat().st_size > 0
     assert np.load(tmp_path / "a.npz")["x"].sum() == 499500
+
+
+@pytest.mark.parametrize("module", ["brfgs.init.colmap", "brfgs.init.colmap_io", "brfgs.init.colmap_project"])
+def test_pycolmap_leaves_sigterm_alone(module):
+    """glog's failure handler (installed by pycolmap) turns SIGTERM into a native stack trace on stderr:
+    a training rank that the distributed launcher stops printed one. After importing any module that
+    loads pycolmap, SIGTERM ends the process quietly with the default status."""
+    code = f"import os, signal, {module}; os.kill(os.getpid(), signal.SIGTERM); print('survived')"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == -15 and p.stdout == "" and p.stderr == "", (p.returncode, p.stderr[-2000:])
 
 
 # ----------------------------------------------------------------------------------- CLI

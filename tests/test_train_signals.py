@@ -75,6 +75,18 @@ def test_ctrl_c_while_a_checkpoint_is_written_waits_for_it(scene, reference, tmp
     assert _same(load(train(scene, run, _cfg(), progress=False, log=None))[0], reference)
 
 
+def test_training_learns_even_when_autograd_was_left_off(scene, reference, tmp_path):
+    """A Ctrl-C that lands inside a no_grad block's entry leaves this thread's grad mode off; the next
+    train() in the process must still learn (the same model) and give the caller's mode back."""
+    torch.set_grad_enabled(False)
+    try:
+        model = train(scene, tmp_path / "run", _cfg(), progress=False, log=None)
+        assert not torch.is_grad_enabled()
+    finally:
+        torch.set_grad_enabled(True)
+    assert _same(load(model)[0], reference)
+
+
 def test_a_log_without_its_header_is_written_again(tmp_path):
     folder = RunFolder(tmp_path)
     folder.log.write_text("stage1,1,0.5,20.0,100\r\nstage1,2,0.4,21.0,100\r\nstage1,3,0.3")  # torn last line
@@ -144,5 +156,6 @@ def test_two_presses_10_ms_apart_at_20_moments(scene, reference, tmp_path, at):
     except KeyboardInterrupt:
         pass
     assert len(timers) == 1
+    assert torch.is_grad_enabled()  # a press inside a no_grad entry must not leave autograd off
     model = run / "model.safetensors" if finished else train(scene, run, _cfg(), progress=False, log=None)
     assert _same(load(model)[0], reference)

@@ -4,9 +4,9 @@
     res = initialize(scene, band_indices, poses="known", out_dir="run/init")
 
 pycolmap 4.2.1 breaks Python's zlib when it is imported first (np.savez_compressed and PNG
-writing then abort with "free(): invalid pointer"). ``zlib`` is therefore imported here,
-before any submodule can import pycolmap; only :mod:`brfgs.init.colmap` imports pycolmap,
-and only through this package.
+writing then abort with "free(): invalid pointer") and takes over SIGTERM: every module here
+imports it through :mod:`brfgs.init.pycolmap_safe`, which guards both; ``zlib`` is also imported
+here, before any submodule.
 """
 
 import zlib  # noqa: F401  (must be imported before pycolmap)

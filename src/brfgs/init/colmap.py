@@ -1,19 +1,17 @@
 """pycolmap plumbing: a COLMAP database of our own features, exhaustive matching with geometric
 verification, incremental mapping (unknown poses) and point triangulation (known poses).
 
-Import through :mod:`brfgs.init`, which imports ``zlib`` before pycolmap (pycolmap 4.2.1
-otherwise breaks zlib: np.savez_compressed and PNG writing abort).
+pycolmap comes through :mod:`brfgs.init.pycolmap_safe` (zlib first, SIGTERM left alone).
 """
 
 from __future__ import annotations
 
-import zlib  # noqa: F401  (must precede pycolmap; see module docstring)
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-import pycolmap
+from brfgs.init.pycolmap_safe import pycolmap
 
 from brfgs.data.cameras import GL_TO_CV
 

@@ -29,12 +29,11 @@ camera, one trivial rig and frame per image) that pycolmap and COLMAP open.
 
 from __future__ import annotations
 
-import zlib  # noqa: F401  (must precede pycolmap; see brfgs.init.colmap)
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-import pycolmap
+from brfgs.init.pycolmap_safe import pycolmap
 
 from brfgs.data import atomic
 from brfgs.data.cameras import GL_TO_CV

@@ -18,14 +18,13 @@ is tested end to end on data with known truth:
 
 from __future__ import annotations
 
-import zlib  # noqa: F401  (must precede pycolmap; see brfgs.init.colmap)
 import json
 import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
-import pycolmap
+from brfgs.init.pycolmap_safe import pycolmap
 import tifffile
 
 from brfgs.data import atomic

@@ -406,11 +406,14 @@ def train(scene_path, out_dir, cfg: TrainConfig, overwrite: bool = False, progre
     ``comm``: this process's rank of a data-parallel run (default: one process)."""
     trainer = Trainer(scene_path, out_dir, cfg, overwrite=overwrite, progress=progress, callback=callback,
                       from_stage1=from_stage1, log=log, comm=comm)
-    if not trainer.comm.is_main:
-        return trainer.run()
-    check_outside(Path(out_dir), Path(scene_path))  # before the lock creates the folder
-    with folder_lock(Path(out_dir), "brfgs train"):  # one writer: the finished check and the run under it
-        return trainer.run()
+    # A Ctrl-C that lands inside a no_grad block's entry leaves grad mode off for good; enable_grad
+    # restores the caller's mode on the way out, so a second train() in this process still learns.
+    with torch.enable_grad():
+        if not trainer.comm.is_main:
+            return trainer.run()
+        check_outside(Path(out_dir), Path(scene_path))  # before the lock creates the folder
+        with folder_lock(Path(out_dir), "brfgs train"):  # one writer: the finished check and the run under it
+            return trainer.run()
 
 
 def train_rank(comm: Comm, scene_path, out_dir, cfg: TrainConfig, overwrite: bool, from_stage1, quiet: bool) -> None:
