@@ -179,8 +179,7 @@ def test_click_ray_goes_through_the_clicked_pixel(tm, nadir):
 
 def test_roi_spectrum_and_brf_are_the_brf_library_results(tm, nadir, tmp_path):
     c2w, intr = nadir
-    o, d = click_ray(c2w, intr, 0.5, 0.5)
-    p = surface_hit(tm, o, d, intr.fl_y)
+    p = surface_hit(tm, c2w, intr, 0.5, 0.5)
     roi = disc_roi(p, 3.0)
     assert roi.area_m2 == pytest.approx(math.pi * 9, rel=0.01)
     sun = (40.0, 120.0)

@@ -29,7 +29,7 @@ from brfgs.viewer.cameras import viser_from_c2w
 from brfgs.viewer.checks import ROI_RADIUS_M, roi_name
 from brfgs.viewer.frames import SURFACE_MIN_ALPHA, frame_comparison
 from brfgs.viewer.options import ViewerOptions
-from brfgs.viewer.roi import (RoiResult, click_ray, disc_roi, polar_image, roi_directional, roi_spectrum,
+from brfgs.viewer.roi import (RoiResult, disc_roi, polar_image, roi_directional, roi_spectrum,
                               save_roi_folder, surface_hit)
 
 __all__ = ["RoiPanel", "CameraPanel", "add_plot", "finite_rows", "PLOT_AXES"]
@@ -111,10 +111,9 @@ class RoiPanel:
     def _analyse(self, seq: int, c2w, intr, x, y, radius_m, sun) -> None:
         tm, o = self.tm, self.opts
         t0 = time.perf_counter()
-        origin, direction = click_ray(c2w, intr, x, y)
         self._wait_for_frames()
         with self._render_lock():
-            p = surface_hit(tm, origin, direction, intr.fl_y, backend=o.backend)
+            p = surface_hit(tm, c2w, intr, x, y, backend=o.backend)
         self._current(seq)
         if p is None:
             self.text.content = (f"Nothing was hit there (accumulated opacity below {SURFACE_MIN_ALPHA:g}); "

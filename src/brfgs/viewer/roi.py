@@ -34,7 +34,7 @@ from brfgs.analysis.roi import PolygonROI
 from brfgs.analysis.views import hemisphere_grid, principal_plane_directions
 from brfgs.data import atomic, lock
 from brfgs.data.angles import relative_azimuth_deg
-from brfgs.data.cameras import Intrinsics, look_at_c2w, pixel_rays
+from brfgs.data.cameras import Intrinsics, pixel_rays
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.model.rendering import frustum_subset
@@ -47,17 +47,21 @@ DEFAULT_BANDS_NM = (480.0, 680.0, 760.0, 860.0)
 _PROBE_THRESHOLDS = 64  # depth thresholds per probe render
 
 
+def _pixel_camera(intr: Intrinsics, x: float, y: float) -> Intrinsics:
+    """The one-pixel image centred on the point (x, y) ∈ [0, 1]² (0, 0 top left) of ``intr``'s image."""
+    return Intrinsics(intr.fl_x, intr.fl_y, intr.cx - x * intr.w + 0.5, intr.cy - y * intr.h + 0.5, 1, 1)
+
+
 def click_ray(c2w: np.ndarray, intr: Intrinsics, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
     """(origin [3], unit direction [3]) of the ray through the point (x, y) ∈ [0, 1]² of the image
     (0, 0 top left) of the OpenGL camera ``c2w`` [4, 4] with ``intr``."""
-    one = Intrinsics(intr.fl_x, intr.fl_y, intr.cx - x * intr.w + 0.5, intr.cy - y * intr.h + 0.5, 1, 1)
-    o, d = pixel_rays(np.asarray(c2w, float), one)
+    o, d = pixel_rays(np.asarray(c2w, float), _pixel_camera(intr, x, y))
     return np.asarray(o, float).reshape(-1, 3)[0], np.asarray(d, float).reshape(-1, 3)[0]
 
 
 def _opacity_before(tm: TrainedModel, cam, z: Tensor, thresholds: np.ndarray, backend: str) -> tuple[np.ndarray, float]:
-    """(opacity accumulated in front of each threshold depth [M], total opacity) of the probe
-    camera's one pixel: the rasterizer blends the indicator z_k ≤ t_m of each Gaussian, and with
+    """(opacity accumulated in front of each threshold depth [M], total opacity) of the one-pixel
+    camera ``cam``: the rasterizer blends the indicator z_k ≤ t_m of each Gaussian, and with
     depth-ordered blending Σ_{z_k ≤ t} w_k is the opacity accumulated up to depth t."""
     t = torch.as_tensor(thresholds, dtype=z.dtype)
 
@@ -68,23 +72,26 @@ def _opacity_before(tm: TrainedModel, cam, z: Tensor, thresholds: np.ndarray, ba
     return rv.image.reshape(-1, len(thresholds)).mean(0).numpy().astype(np.float64), float(rv.alpha.mean())
 
 
-def surface_hit(tm: TrainedModel, origin_m: np.ndarray, direction: np.ndarray, focal_px: float, *,
+def surface_hit(tm: TrainedModel, c2w: np.ndarray, intr: Intrinsics, x: float, y: float, *,
                 min_alpha: float = SURFACE_MIN_ALPHA, backend: str = "auto") -> np.ndarray | None:
-    """World point [3] (m, ENU) where the ray from ``origin_m`` along ``direction`` meets the surface,
-    rendered as a pixel of focal length ``focal_px``: the depth at which the ray's accumulated
-    opacity first reaches half of its total; None when the total is below ``min_alpha``.
+    """World point [3] (m, ENU) of the surface seen at the point (x, y) ∈ [0, 1]² (0, 0 top left) of
+    the view (OpenGL ``c2w`` [4, 4], ``intr``): on the pixel's ray, at the depth where the opacity
+    accumulated along it first reaches half of its total (the median depth of the blending weights);
+    None when the total is below ``min_alpha``.
 
-    A one-pixel camera looks along the ray; each render blends, for up to 64 depth thresholds, the
-    indicator "in front of the threshold", which gives the accumulated opacity at those depths.
-    The thresholds bracket the crossing among the depths of the Gaussians that can touch the pixel
-    and are narrowed until they are single Gaussians' depths (exact in a few renders)."""
-    o = np.asarray(origin_m, float)
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    c2w = look_at_c2w(o, o + d, up=np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.999 else np.array([0.0, 1.0, 0.0]))
-    cam = camera_from_intrinsics(c2w, Intrinsics(focal_px, focal_px, 0.5, 0.5, 1, 1))
-    means = tm.frozen()["means"]
-    z = ((means.double() - torch.as_tensor(o)) @ torch.as_tensor(d)).to(means.dtype)  # [N] depth along the ray
-    cand = np.unique(z[frustum_subset(means, tm.frozen()["max_scale"], cam)].numpy().astype(np.float64))
+    That pixel alone is rendered (the view's camera with a one-pixel image); each render blends, for
+    up to 64 depth thresholds, the indicator "in front of the threshold", which gives the opacity
+    accumulated up to those depths. The thresholds bracket the crossing among the depths of the
+    Gaussians that can touch the pixel and narrow down to single Gaussians' depths (exact in a few
+    renders)."""
+    c2w = np.asarray(c2w, float)
+    probe = _pixel_camera(intr, x, y)
+    cam = camera_from_intrinsics(c2w, probe)
+    origin, direction = click_ray(c2w, intr, x, y)
+    axis = -c2w[:3, 2]  # the optical axis (OpenGL cameras look along -z): the rasterizer's depth
+    f = tm.frozen()
+    z = ((f["means"].double() - torch.as_tensor(origin)) @ torch.as_tensor(axis)).to(f["means"].dtype)  # [N]
+    cand = np.unique(z[frustum_subset(f["means"], f["max_scale"], cam)].numpy().astype(np.float64))
     cand = cand[cand > 0.01]
     if cand.size == 0:
         return None
@@ -97,7 +104,7 @@ def surface_hit(tm: TrainedModel, origin_m: np.ndarray, direction: np.ndarray, f
             cuts = np.append(0.5 * (cand[:-1] + cand[1:]), cand[-1] + 1.0)
             acc, _ = _opacity_before(tm, cam, z, cuts, backend)
             k = int(np.argmax(acc >= target)) if (acc >= target).any() else cand.size - 1
-            return o + float(cand[k]) * d
+            return origin + float(cand[k]) / float(direction @ axis) * direction
         pick = np.unique(np.linspace(0, cand.size - 1, _PROBE_THRESHOLDS).round().astype(int))
         acc, _ = _opacity_before(tm, cam, z, cand[pick], backend)
         k = int(np.argmax(acc >= target)) if (acc >= target).any() else len(pick) - 1

@@ -36,7 +36,7 @@ from brfgs.viewer.formula import NDVI
 from brfgs.viewer.frames import DisplayMode, FrameResult, parse_mode, render_frame
 from brfgs.viewer.options import ViewerOptions
 from brfgs.viewer.panels import CameraPanel, RoiPanel
-from brfgs.viewer.roi import click_ray, disc_roi, roi_spectrum, surface_hit
+from brfgs.viewer.roi import disc_roi, roi_spectrum, surface_hit
 
 __all__ = ["ViewerOptions", "Viewer", "warm_up"]
 
@@ -66,8 +66,7 @@ def warm_up(tm: TrainedModel, backend: str = "auto") -> float:
     for mode in ("cir", "normals", "kernel:iso"):
         with contextlib.suppress(UserError):  # a model without these terms
             render_frame(tm, c2w, intr, parse_mode(mode), backend=backend)
-    o, d = click_ray(c2w, intr, 0.5, 0.5)
-    surface_hit(tm, o, d, intr.fl_y, backend=backend)
+    surface_hit(tm, c2w, intr, 0.5, 0.5, backend=backend)
     roi = disc_roi(tm.scene_centre_m(), 3.0 * training_footprint_m(tm))
     res = roi_spectrum(tm, roi, c2w, intr, (tm.sun_zenith_deg, tm.sun_azimuth_deg), backend=backend)
     roi_brf(tm, res.roi, [30.0], [0.0], [0], backend=backend)
