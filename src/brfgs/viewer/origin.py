@@ -6,7 +6,7 @@ and read or drive the viewer (cross-site websocket hijacking), also through a do
 attacker points at 127.0.0.1 (DNS rebinding). A handshake is accepted when
 
 - its ``Origin`` is one of the ``--allow-origin`` values (a reverse proxy's address), or
-- the page is the viewer's own: ``Origin`` is ``http(s)://`` + the ``Host`` header, and that host
+- the page is the viewer's own: ``Origin`` is ``http://`` + the ``Host`` header, and that host
   is an IP address, a loopback name (``localhost``), this machine's name, or the ``--host`` name.
 
 Handshakes without an ``Origin`` header are refused (browsers always send one).
@@ -100,7 +100,7 @@ class OriginPolicy:
         scheme = o.split("://", 1)[0]
         page = _host_and_port(o.split("://", 1)[1], scheme)
         addressed = _host_and_port(host_header or "", scheme)
-        if page is None or addressed is None or page != addressed:
+        if scheme != "http" or page is None or addressed is None or page != addressed:  # the viewer serves http
             return (f"origin {o} is not the viewer's page (Host {host_header!r}); a proxy's address can be "
                     "allowed with --allow-origin")
         host = page[0]

@@ -32,7 +32,7 @@ from brfgs.errors import UserError
 from brfgs.model import TrainedModel
 from brfgs.viewer.cameras import fov_from_intrinsics, viser_from_c2w
 from brfgs.viewer.checks import ROI_RADIUS_M, SUN_AZIMUTH_DEG, SUN_ZENITH_DEG, checked_number, client_view, screen_point
-from brfgs.viewer.formula import NDVI
+from brfgs.viewer.formula import NDVI, parse_formula
 from brfgs.viewer.frames import DisplayMode, FrameResult, parse_mode, render_frame
 from brfgs.viewer.options import ViewerOptions
 from brfgs.viewer.panels import CameraPanel, RoiPanel
@@ -140,7 +140,7 @@ class Viewer:
         for key, (handle, check) in checks.items():
             self._good[key] = handle.value
             handle.on_update(lambda e, key=key, handle=handle, check=check: self._checked(e, key, handle, check))
-        self.formula.on_update(self._apply_display)
+        self.formula.on_update(self._formula_changed)
         reset.on_click(lambda _e: self.reset_sun())
 
     def _check_mode(self, value) -> str:
@@ -168,6 +168,15 @@ class Viewer:
             self.redraw_all()
         elif key in ("mode", "band"):
             self._apply_display(event)
+
+    def _formula_changed(self, event) -> None:
+        """A formula is checked when it is typed (whatever the mode), applied in index mode."""
+        try:
+            parse_formula(self.formula.value)
+        except UserError as exc:
+            self.tell(event.client, exc)
+            return
+        self._apply_display(event)
 
     def _apply_display(self, event) -> None:
         """The display mode of the (checked) widgets, or the browser told why it is not applied."""
