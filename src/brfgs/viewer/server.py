@@ -19,6 +19,7 @@ import contextlib
 import threading
 import time
 import traceback
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numba
@@ -85,6 +86,7 @@ class _ClientState:
     rendering: bool = False
     last: FrameResult | None = None
     alive: bool = True
+    log: deque = field(default_factory=lambda: deque(maxlen=200))  # (sent at, camera age s, render s, height px)
 
 
 @dataclass(frozen=True)
@@ -219,7 +221,6 @@ class Viewer:
         ic.look_at = centre
         ic.up = (0.0, 0.0, 1.0)
         ic.fov = fov_from_intrinsics(tm.intrinsics)[0]
-        ic.near, ic.far = 0.01 * dist, 20.0 * dist
 
     # ------------------------------------------------------------------ clients and rendering
 
@@ -285,6 +286,7 @@ class Viewer:
     def _draw(self, st: _ClientState, height_px: int) -> None:
         """Render and send one frame of ``st``'s camera; any failure goes to its status line."""
         st.rendering = True
+        moved_at = st.moved_at
         try:
             cam = st.client.camera
             c2w, intr = client_view(cam.position, cam.wxyz, cam.fov, cam.image_width, cam.image_height, height_px)
@@ -293,6 +295,8 @@ class Viewer:
                 res = render_frame(self.tm, c2w, intr, s.mode, sun_zenith_deg=s.sun[0], sun_azimuth_deg=s.sun[1],
                                    backend=self.opts.backend)
             st.client.scene.set_background_image(res.rgb, format="jpeg", jpeg_quality=90)
+            now = time.perf_counter()
+            st.log.append((now, now - moved_at, res.seconds, res.rgb.shape[0]))
             if height_px == self.opts.height_px:
                 st.last = res
             self._status(st, f"{res.rgb.shape[1]}×{res.rgb.shape[0]} px in {1000 * res.seconds:.0f} ms")
