@@ -83,6 +83,7 @@ class _ClientState:
     dirty: threading.Event = field(default_factory=threading.Event)
     moved_at: float = 0.0
     need_full: bool = True
+    camera_changed: bool = True
     rendering: bool = False
     last: FrameResult | None = None
     alive: bool = True
@@ -225,7 +226,7 @@ class Viewer:
     # ------------------------------------------------------------------ clients and rendering
 
     def _connect(self, client) -> None:
-        st = _ClientState(client, moved_at=time.perf_counter())  # the first frame small and fast
+        st = _ClientState(client, moved_at=time.perf_counter())  # the first frame small and fast, then full
         with self.display_folder:
             st.status = client.gui.add_markdown("")
         with self.lock:
@@ -243,14 +244,13 @@ class Viewer:
 
     def _moved(self, st: _ClientState) -> None:
         st.moved_at = time.perf_counter()
-        st.need_full = True
+        st.camera_changed = True
         st.dirty.set()
 
     def redraw_all(self) -> None:
         with self.lock:
             states = list(self.clients.values())
         for st in states:
-            st.need_full = True
             st.dirty.set()
 
     def lock_for_render(self):
@@ -268,18 +268,19 @@ class Viewer:
             time.sleep(0.005)
 
     def _render_loop(self, st: _ClientState) -> None:
-        """Per browser: a reduced frame on each camera change, a full frame once the camera rests;
-        the camera read when a frame starts is the newest (older updates are never rendered)."""
+        """Per browser: a reduced frame for each camera change, a full frame once no camera change
+        has come for ``settle_s`` (however long frames take) or at once for a settings change at
+        rest; the camera read when a frame starts is the newest (older updates are never rendered)."""
         while st.alive:
-            st.dirty.wait(timeout=self.opts.settle_s)
+            changed = st.dirty.wait(timeout=self.opts.settle_s)
             if not st.alive:
                 return
-            moving = time.perf_counter() - st.moved_at < self.opts.settle_s
-            if st.dirty.is_set():
+            if changed:
                 st.dirty.clear()
+                moving, st.camera_changed = st.camera_changed, False
                 self._draw(st, self.opts.moving_height_px if moving else self.opts.height_px)
                 st.need_full = moving
-            elif st.need_full and not moving:
+            elif st.need_full:
                 st.need_full = False
                 self._draw(st, self.opts.height_px)
 
