@@ -139,11 +139,15 @@ class RoiPanel:
             with self._render_lock():
                 yield
 
+        def principal_plane_done(r: RoiResult) -> None:
+            self._current(seq)
+            self._plot("pp", (r.pp_signed_zenith_deg,) + tuple(r.pp_values.T),
+                       tuple(f"{w:.0f} nm" for w in r.band_nm), "Principal-plane BRF")
+
         roi_directional(tm, res, step_deg=o.roi_step_deg, polar_azimuths=o.polar_azimuths,
-                        polar_zeniths=o.polar_zeniths, backend=o.backend, each=each)
+                        polar_zeniths=o.polar_zeniths, backend=o.backend, each=each,
+                        principal_plane_done=principal_plane_done)
         self._current(seq)
-        self._plot("pp", (res.pp_signed_zenith_deg,) + tuple(res.pp_values.T),
-                   tuple(f"{w:.0f} nm" for w in res.band_nm), "Principal-plane BRF")
         self._polar(res)
         self.text.content = f"{head} BRF ready ({time.perf_counter() - t0:.1f} s)."
 

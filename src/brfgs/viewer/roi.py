@@ -148,6 +148,7 @@ def roi_spectrum(tm: TrainedModel, roi: PolygonROI, c2w: np.ndarray, intr: Intri
     (zenith, azimuth; degrees) — :func:`brfgs.analysis.brf.roi_mean_from_view`; BRF fields empty."""
     spec, n, _ = B.roi_mean_from_view(tm, roi, c2w, intr, tm.sun_direction(*sun_deg), backend=backend,
                                       min_alpha=min_alpha)
+    roi.source["min_alpha"] = min_alpha  # in roi.geojson: brfgs brf --min-alpha reads the same pixels
     wl = np.asarray(tm.wavelengths_nm, float)
     empty = np.zeros((0,))
     return RoiResult(roi, wl, spec, n, empty, empty, np.zeros((0, 0)), empty, empty, np.zeros((0, 0, 0)),
@@ -156,13 +157,14 @@ def roi_spectrum(tm: TrainedModel, roi: PolygonROI, c2w: np.ndarray, intr: Intri
 
 def roi_directional(tm: TrainedModel, res: RoiResult, *, bands_nm=DEFAULT_BANDS_NM, step_deg: float = 5.0,
                     polar_azimuths: int = 24, polar_zeniths: int = 8, max_zenith_deg: float = 75.0,
-                    backend: str = "auto", each: Callable[[int, int], AbstractContextManager] | None = None
-                    ) -> RoiResult:
+                    backend: str = "auto", each: Callable[[int, int], AbstractContextManager] | None = None,
+                    principal_plane_done: Callable[[RoiResult], None] | None = None) -> RoiResult:
     """Fill ``res`` with the principal-plane BRF and polar map of its ROI in ``bands_nm`` (those within
     the model's range) under its sun: :func:`brfgs.analysis.brf.roi_brf` over the directions of
     :func:`brfgs.analysis.brf.principal_plane` and :func:`brfgs.analysis.brf.polar_map` (the same
     values), one direction at a time, each inside the context ``each(done, total)`` (which may wait,
-    hold a lock, or raise to stop)."""
+    hold a lock, or raise to stop); the principal plane comes first and ``principal_plane_done(res)``
+    is called once its fields are filled."""
     wl = res.wavelengths_nm
     bands = [w for w in bands_nm if wl.min() - 10 <= w <= wl.max() + 10] or [float(wl[len(wl) // 2])]
     bi = tm.band_indices(bands)
@@ -180,10 +182,13 @@ def roi_directional(tm: TrainedModel, res: RoiResult, *, bands_nm=DEFAULT_BANDS_
             one = B.roi_brf(tm, res.roi, zen[k:k + 1], az[k:k + 1], bi, sun_deg=res.sun_deg, backend=backend,
                             min_alpha=min_alpha)
         vals[k], counts[k] = one.values[0], one.n_pixels[0]
-    res.band_nm, res.pp_signed_zenith_deg, res.pp_values = wl[bi], s, vals[:n_pp]
+        if k == n_pp - 1:
+            res.band_nm, res.pp_signed_zenith_deg, res.pp_values = wl[bi], s, vals[:n_pp]
+            res.extra["principal_plane_pixels"] = counts[:n_pp].tolist()
+            if principal_plane_done is not None:
+                principal_plane_done(res)
     res.polar_zenith_deg, res.polar_azimuth_deg = zc, ac
     res.polar_values = vals[n_pp:].reshape(len(zc), len(ac), -1)
-    res.extra["principal_plane_pixels"] = counts[:n_pp].tolist()
     return res
 
 
@@ -216,21 +221,21 @@ def roi_geojson(roi: PolygonROI) -> dict:
 
 def save_roi(res: RoiResult, out_dir: Path) -> list[Path]:
     """Write spectrum.csv, principal_plane.csv, polar.csv (columns as ``brfgs brf`` writes them; the
-    last two once the BRF is computed) and roi.geojson into ``out_dir``; returns the paths."""
+    last two once they are computed) and roi.geojson into ``out_dir``; returns the paths."""
     out = Path(out_dir)
     cols = [f"brf_{w:.0f}nm" for w in res.band_nm]
     paths = [write_csv(out / "spectrum.csv", ["wavelength_nm", "reflectance"],
                        [[float(w), float(v)] for w, v in zip(res.wavelengths_nm, res.spectrum)])]
-    if res.pp_values.size == 0:  # the BRF is not computed yet
-        return paths + [atomic.write_json(out / "roi.geojson", roi_geojson(res.roi))]
-    paths.append(write_csv(out / "principal_plane.csv", ["signed_view_zenith_deg"] + cols,
-                           [[float(s)] + [float(v) for v in row] for s, row in zip(res.pp_signed_zenith_deg,
-                                                                                    res.pp_values)]))
-    rows = [[float(z), float(a), float(relative_azimuth_deg(a, res.sun_deg[1]))]
-            + [float(v) for v in res.polar_values[i, k]]
-            for i, z in enumerate(res.polar_zenith_deg) for k, a in enumerate(res.polar_azimuth_deg)]
-    paths.append(write_csv(out / "polar.csv", ["view_zenith_deg", "view_azimuth_deg", "relative_azimuth_deg"]
-                           + cols, rows))
+    if res.pp_values.size:  # once computed
+        paths.append(write_csv(out / "principal_plane.csv", ["signed_view_zenith_deg"] + cols,
+                               [[float(s)] + [float(v) for v in row] for s, row in zip(res.pp_signed_zenith_deg,
+                                                                                        res.pp_values)]))
+    if res.polar_values.size:
+        rows = [[float(z), float(a), float(relative_azimuth_deg(a, res.sun_deg[1]))]
+                + [float(v) for v in res.polar_values[i, k]]
+                for i, z in enumerate(res.polar_zenith_deg) for k, a in enumerate(res.polar_azimuth_deg)]
+        paths.append(write_csv(out / "polar.csv", ["view_zenith_deg", "view_azimuth_deg", "relative_azimuth_deg"]
+                               + cols, rows))
     paths.append(atomic.write_json(out / "roi.geojson", roi_geojson(res.roi)))
     return paths
 
