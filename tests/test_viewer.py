@@ -1,5 +1,6 @@
 """The viewer's pure pieces (brfgs.viewer.cameras, formula, frames, roi): no viser, no browser."""
 
+import contextlib
 import json
 import math
 
@@ -19,7 +20,7 @@ from brfgs.model.camera import camera_from_intrinsics
 from brfgs.viewer.cameras import c2w_from_viser, fov_from_intrinsics, intrinsics_from_fov, viser_from_c2w
 from brfgs.viewer.formula import NDVI, parse_formula
 from brfgs.viewer.frames import parse_mode, render_frame
-from brfgs.viewer.roi import disc_roi, hit_point, polar_image, roi_directional, roi_spectrum, save_roi
+from brfgs.viewer.roi import click_ray, disc_roi, polar_image, roi_directional, roi_spectrum, save_roi, surface_hit
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +127,9 @@ def test_frames_match_the_library_render(tm, nadir):
     ndvi = parse_formula(NDVI).evaluate({860.0: band, 650.0: rv.cube[..., tm.band_indices([650])[0]]})
     g = render_frame(tm, c2w, intr, parse_mode("index")).rgb.astype(float)
     expect = colormaps["RdYlGn"](np.clip((np.nan_to_num(ndvi) + 1) / 2, 0, 1))[..., :3] * 255
-    assert np.abs(g - expect).max() <= 0.51
+    surface = (rv.alpha >= 0.1) & np.isfinite(ndvi)
+    assert surface.mean() > 0.5 and np.abs(g - expect)[surface].max() <= 0.51
+    assert (g[~surface] == 0).all()  # the background and values without a number: black
 
 
 def test_every_mode_renders_and_they_differ(tm, nadir):
@@ -166,33 +169,35 @@ def test_sun_changes_the_frame_but_not_the_geometry(tm, nadir):
 # ---------------------------------------------------------------- click → ROI
 
 
-def test_hit_point_lies_on_the_rendered_surface(tm, nadir):
+def test_click_ray_goes_through_the_clicked_pixel(tm, nadir):
     c2w, intr = nadir
-    fr = render_frame(tm, c2w, intr, parse_mode("depth"))
-    ii, jj = np.nonzero(fr.view.alpha > 0.9)
-    i, j = ii[len(ii) // 2], jj[len(jj) // 2]
-    p = hit_point(fr.view.depth, c2w, intr, j + 0.5, i + 0.5, fr.view.alpha)
-    uv, z = project_points(p[None], c2w, intr)
-    assert np.allclose(uv[0], [j + 0.5, i + 0.5], atol=1e-6) and z[0] == pytest.approx(fr.view.depth[i, j], rel=1e-6)
-    assert hit_point(fr.view.depth, c2w, intr, -1.0, 3.0) is None
-    empty = np.zeros_like(fr.view.alpha)
-    assert hit_point(fr.view.depth, c2w, intr, j + 0.5, i + 0.5, empty) is None
+    o, d = click_ray(c2w, intr, 0.25, 0.75)
+    uv, z = project_points((o + 10.0 * d)[None], c2w, intr)
+    assert np.allclose(uv[0], [0.25 * intr.w, 0.75 * intr.h], atol=1e-9) and z[0] > 0
+    assert np.linalg.norm(d) == pytest.approx(1.0)
 
 
 def test_roi_spectrum_and_brf_are_the_brf_library_results(tm, nadir, tmp_path):
     c2w, intr = nadir
-    fr = render_frame(tm, c2w, intr, parse_mode("cir"))
-    p = hit_point(fr.view.depth, c2w, intr, 32.0, 32.0, fr.view.alpha)
+    p = surface_hit(tm, c2w, intr, 0.5, 0.5)
     roi = disc_roi(p, 3.0)
     assert roi.area_m2 == pytest.approx(math.pi * 9, rel=0.01)
     sun = (40.0, 120.0)
     res = roi_spectrum(tm, roi, c2w, intr, sun)
-    ref, n, _ = B.roi_mean_from_view(tm, roi, c2w, intr, tm.sun_direction(*sun))
+    ref, n, _ = B.roi_mean_from_view(tm, roi, c2w, intr, tm.sun_direction(*sun), min_alpha=0.1)
     assert res.n_pixels == n > 0 and np.array_equal(res.spectrum, ref)
-    roi_directional(tm, res, bands_nm=(480.0, 860.0), step_deg=25.0, polar_azimuths=4, polar_zeniths=2)
-    s, pp = B.principal_plane(tm, roi, tm.band_indices([480, 860]), step_deg=25.0, sun_deg=sun)
+    seen = []
+    roi_directional(tm, res, bands_nm=(480.0, 860.0), step_deg=25.0, polar_azimuths=4, polar_zeniths=2,
+                    each=lambda k, total: seen.append((k, total)) or contextlib.nullcontext())
+    assert seen == [(k, 7 + 8) for k in range(15)]  # 7 principal-plane and 2 x 4 polar directions
+    bi = tm.band_indices([480, 860])
+    s, pp = B.principal_plane(tm, roi, bi, step_deg=25.0, sun_deg=sun, min_alpha=0.1)
     assert np.array_equal(res.pp_signed_zenith_deg, s) and np.array_equal(res.pp_values, pp.values, equal_nan=True)
-    assert res.polar_values.shape == (2, 4, 2) and np.isfinite(res.polar_values).all()
+    assert res.extra["principal_plane_pixels"] == pp.n_pixels.tolist()
+    zc, ac, vals, _ = B.polar_map(tm, roi, bi, n_azimuth=4, n_zenith=2, sun_deg=sun, min_alpha=0.1)
+    assert np.array_equal(res.polar_zenith_deg, zc) and np.array_equal(res.polar_azimuth_deg, ac)
+    assert np.array_equal(res.polar_values, vals) and res.polar_values.shape == (2, 4, 2)
+    assert np.isfinite(res.polar_values).all()
     img = polar_image(res.polar_zenith_deg, res.polar_azimuth_deg, res.polar_values[..., 1], size_px=50)
     assert img.shape == (50, 50, 3) and img[25, 25].tolist() != [255, 255, 255] and img[0, 0].tolist() == [255] * 3
     paths = save_roi(res, tmp_path / "roi")

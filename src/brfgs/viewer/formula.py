@@ -34,8 +34,8 @@ class IndexFormula:
     tree: ast.Expression
 
     def evaluate(self, bands: dict[float, np.ndarray]) -> np.ndarray:
-        """The formula over ``bands`` {wavelength nm: plane [H, W]}; x/0 gives NaN."""
-        with np.errstate(divide="ignore", invalid="ignore"):
+        """The formula over ``bands`` {wavelength nm: plane [H, W]}; x/0 (constants included) gives NaN."""
+        with np.errstate(all="ignore"):
             out = _eval(self.tree.body, bands)
         out = np.asarray(out, np.float64)
         return np.where(np.isfinite(out), out, np.nan)
@@ -74,6 +74,8 @@ def parse_formula(text: str) -> IndexFormula:
         tree = ast.parse(t_py, mode="eval")
     except SyntaxError as exc:
         raise UserError(f"formula {t!r} is not an expression: {exc.msg}", field="formula") from None
+    except (ValueError, RecursionError, MemoryError):  # e.g. a NUL character, absurd nesting
+        raise UserError(f"formula {t!r} is not an expression", field="formula") from None
     found: list[float] = []
     _check(tree.body, t, found)
     if not found:
@@ -88,5 +90,5 @@ def _eval(node: ast.AST, bands: dict[float, np.ndarray]):
         v = _eval(node.operand, bands)
         return -v if isinstance(node.op, ast.USub) else v
     if isinstance(node, ast.Constant):
-        return float(node.value)
+        return np.float64(node.value)  # numpy scalars: 0/0 is NaN, 1/0 inf (then NaN), never an exception
     return np.asarray(bands[_band_nm(node.id)], np.float64)

@@ -11,6 +11,10 @@ Every mode goes through the one render path, :func:`brfgs.model.render`:
 - ``kernel:<iso|vol|geo|spec>`` — the term's contribution to the reflectance at the CIR's NIR band,
   decoded as ``brfgs products`` does it (D(Σ_{≤c}) − D(Σ_{<c})), on a blue-white-red map
   symmetric about 0.
+
+The index, depth and kernel modes show only the surface: pixels whose accumulated opacity is
+below :data:`SURFACE_MIN_ALPHA` (the learned background) are black, as are formula values
+without a number (x/0). The geometry modes (depth, normals, alpha) rasterize no appearance.
 """
 
 from __future__ import annotations
@@ -33,9 +37,11 @@ from brfgs.model.view import RenderedView
 from brfgs.spectral.band_decode import decode_bands
 from brfgs.viewer.formula import NDVI, IndexFormula, parse_formula
 
-__all__ = ["DisplayMode", "parse_mode", "FrameResult", "render_frame", "frame_comparison", "MODE_NAMES", "TRUECOLOR_NM"]
+__all__ = ["DisplayMode", "parse_mode", "FrameResult", "render_frame", "frame_comparison", "warm_up", "MODE_NAMES",
+           "TRUECOLOR_NM", "SURFACE_MIN_ALPHA"]
 
 TRUECOLOR_NM = (640.0, 550.0, 470.0)
+SURFACE_MIN_ALPHA = 0.1  # accumulated opacity from which a pixel shows the surface (index, depth, kernel, clicks)
 MODE_NAMES = ("cir", "truecolor", "band", "index", "depth", "normals", "alpha",
               "kernel:iso", "kernel:vol", "kernel:geo", "kernel:spec")
 
@@ -132,8 +138,9 @@ def _spectral_view(tm: TrainedModel, cam, sun: tuple[float, float], bands: list[
     return view, decode_bands(tm.decoder, torch.as_tensor(view.latent), bands).numpy()
 
 
-def _planes_rgb(tm: TrainedModel, planes: np.ndarray, mode: DisplayMode) -> np.ndarray:
-    """[H, W, 3] in [0, 1] of a spectral mode from its planes [H, W, nb] (:func:`mode_bands`)."""
+def _planes_rgb(tm: TrainedModel, planes: np.ndarray, mode: DisplayMode, alpha: np.ndarray) -> np.ndarray:
+    """[H, W, 3] in [0, 1] of a spectral mode from its planes [H, W, nb] (:func:`mode_bands`);
+    an index only where the surface is (``alpha`` [H, W] ≥ :data:`SURFACE_MIN_ALPHA`)."""
     if mode.kind == "cir":
         return cir_composite(planes, (0, 1, 2), tm.cir_scale)
     if mode.kind == "truecolor":
@@ -142,7 +149,7 @@ def _planes_rgb(tm: TrainedModel, planes: np.ndarray, mode: DisplayMode) -> np.n
         return np.repeat((planes[..., 0] / _p99(planes[..., 0]))[..., None], 3, -1)
     f = mode.formula
     value = f.evaluate({w: planes[..., j] for j, w in enumerate(f.wavelengths_nm)})  # [H, W]
-    return _colormap(value, -1.0, 1.0, "RdYlGn")
+    return _colormap(np.where(alpha >= SURFACE_MIN_ALPHA, value, np.nan), -1.0, 1.0, "RdYlGn")
 
 
 def _geometry_rgb(view: RenderedView, kind: str) -> np.ndarray:  # [H, W, 3] in [0, 1]
@@ -150,10 +157,14 @@ def _geometry_rgb(view: RenderedView, kind: str) -> np.ndarray:  # [H, W, 3] in 
         return np.repeat(view.alpha[..., None], 3, -1)
     if kind == "normals":
         return np.where(view.alpha[..., None] > 0, 0.5 * (view.normal + 1.0), 0.0)
-    d = np.where((view.depth > 0) & (view.alpha > 0.05), view.depth, np.nan)
+    d = np.where((view.depth > 0) & (view.alpha >= SURFACE_MIN_ALPHA), view.depth, np.nan)
     v = d[np.isfinite(d)]
     lo, hi = (np.percentile(v, 2), np.percentile(v, 98)) if v.size else (0.0, 1.0)
     return _colormap(d, float(lo), float(hi), "viridis")
+
+
+def _no_features(idx: Tensor, omega_o: Tensor) -> Tensor:  # [n, 1]: geometry only, no appearance head
+    return torch.zeros(idx.shape[0], 1)
 
 
 def kernel_contribution(tm: TrainedModel, view_image: Tensor, alpha: np.ndarray, term: str,
@@ -201,7 +212,7 @@ def render_frame(tm: TrainedModel, c2w: np.ndarray, intr: Intrinsics, mode: Disp
         view = _kernel_view(tm, cam, sun, mode.term, backend)
         nir = tm.cir_indices[0]
         contrib = kernel_contribution(tm, view.image, view.alpha, mode.term, nir)  # [H, W]
-        contrib = np.where(view.alpha > 0.05, contrib, np.nan)
+        contrib = np.where(view.alpha >= SURFACE_MIN_ALPHA, contrib, np.nan)
         s = _p99(np.abs(contrib))
         rgb = _colormap(contrib, -s, s, "RdBu_r")
     else:
@@ -212,12 +223,11 @@ def render_frame(tm: TrainedModel, c2w: np.ndarray, intr: Intrinsics, mode: Disp
             rgb = view.cir
         elif mode.needs_cube:
             view, planes = _spectral_view(tm, cam, sun, mode_bands(tm, mode), backend)
-            rgb = _planes_rgb(tm, planes, mode)
+            rgb = _planes_rgb(tm, planes, mode, view.alpha)
             if mode.kind == "cir":
                 view.cir = rgb
         else:
-            view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], normals=mode.kind == "normals",
-                          decode=False, backend=backend)
+            view = render(tm, cam, features=_no_features, normals=mode.kind == "normals", backend=backend)
             rgb = _geometry_rgb(view, mode.kind)
     return FrameResult(_to_u8(rgb), view, np.asarray(c2w, float), intr, time.perf_counter() - t0)
 

@@ -3,8 +3,14 @@ plots, and the training and test cameras.
 
 Rendering stays in brfgs (:func:`brfgs.viewer.frames.render_frame`, the one render path); viser
 only shows the image as the scene background and sends the browser's camera, clicks and widget
-values. Each browser gets a render thread: while its camera moves frames are rendered at a
-reduced resolution, once it has stopped for ``settle_s`` the frame is rendered at full resolution.
+values, each checked (:mod:`brfgs.viewer.checks`) before use: a bad value is reported to the
+browser that sent it in one line and changes nothing. Each browser gets a render thread that
+always renders its newest camera: a frame ``--moving-height`` high while the camera moves, a
+full-size one once it has rested for ``settle_s``; a frame that fails is reported in that
+browser's status line and the next camera is served as usual.
+
+A click on the surface picks an ROI (never a camera; cameras are chosen in the Cameras panel or
+by shift-clicking a frustum) and leaves the camera where it is.
 """
 
 from __future__ import annotations
@@ -13,25 +19,27 @@ import contextlib
 import threading
 import time
 import traceback
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections import deque
+from dataclasses import dataclass, field, replace
 
 import numba
 import numpy as np
 import viser
-import viser.uplot
 
-from brfgs.analysis.brf import training_footprint_m
-from brfgs.analysis.brf_report import open_model_scene
+from brfgs.analysis.bench import bench_camera
+from brfgs.analysis.brf import roi_brf, training_footprint_m
+from brfgs.data.cameras import pose_from_view_angles
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel
+from brfgs.viewer.cameras import fov_from_intrinsics, viser_from_c2w
+from brfgs.viewer.checks import ROI_RADIUS_M, SUN_AZIMUTH_DEG, SUN_ZENITH_DEG, checked_number, client_view, screen_point
+from brfgs.viewer.formula import NDVI, parse_formula
+from brfgs.viewer.frames import DisplayMode, FrameResult, parse_mode, render_frame
 from brfgs.viewer.options import ViewerOptions
-from brfgs.viewer.cameras import c2w_from_viser, fov_from_intrinsics, intrinsics_from_fov, viser_from_c2w
-from brfgs.viewer.formula import NDVI
-from brfgs.viewer.frames import FrameResult, frame_comparison, parse_mode, render_frame
-from brfgs.viewer.roi import RoiResult, disc_roi, hit_point, polar_image, roi_directional, roi_spectrum, save_roi
+from brfgs.viewer.panels import CameraPanel, RoiPanel
+from brfgs.viewer.roi import disc_roi, roi_spectrum, surface_hit
 
-__all__ = ["ViewerOptions", "Viewer"]
+__all__ = ["ViewerOptions", "Viewer", "warm_up"]
 
 
 SHADOW_NOTE = ("**Shadows are baked into the model.** The sun sliders re-evaluate the kernels (iso, vol, geo, "
@@ -50,16 +58,44 @@ def _serial_lock(lock: threading.Lock):
     return lock if layer not in ("omp", "tbb") else contextlib.nullcontext()
 
 
+def warm_up(tm: TrainedModel, backend: str = "auto") -> float:
+    """Run every path the page uses once on a 32-pixel view (spectral, geometry and kernel frames, a
+    click's hit and ROI spectrum, one BRF direction), so that the first frames and clicks do not wait
+    for compiled kernels to load; returns the seconds taken."""
+    t0 = time.perf_counter()
+    c2w, intr = bench_camera(tm, 32)
+    for mode in ("cir", "normals", "kernel:iso"):
+        with contextlib.suppress(UserError):  # a model without these terms
+            render_frame(tm, c2w, intr, parse_mode(mode), backend=backend)
+    surface_hit(tm, c2w, intr, 0.5, 0.5, backend=backend)
+    roi = disc_roi(tm.scene_centre_m(), 3.0 * training_footprint_m(tm))
+    res = roi_spectrum(tm, roi, c2w, intr, (tm.sun_zenith_deg, tm.sun_azimuth_deg), backend=backend)
+    roi_brf(tm, res.roi, [30.0], [0.0], [0], backend=backend)
+    return time.perf_counter() - t0
+
+
 @dataclass
 class _ClientState:
-    """One browser: its latest full frame (for clicks), render thread signals, its ROI."""
+    """One browser: its status line, render thread signals, its latest full frame."""
 
     client: object
+    status: object = None
     dirty: threading.Event = field(default_factory=threading.Event)
     moved_at: float = 0.0
     need_full: bool = True
+    camera_changed: bool = True
+    rendering: bool = False
     last: FrameResult | None = None
     alive: bool = True
+    log: deque = field(default_factory=lambda: deque(maxlen=200))  # (sent at, camera age s, render s, height px)
+
+
+@dataclass(frozen=True)
+class _Settings:
+    """The checked widget values every frame uses."""
+
+    mode: DisplayMode
+    sun: tuple[float, float]
 
 
 class Viewer:
@@ -70,12 +106,12 @@ class Viewer:
         self.clients: dict[int, _ClientState] = {}
         self.lock = threading.Lock()
         self.render_lock = threading.Lock()
-        self.roi: RoiResult | None = None
-        self.n_saved = 0
-        self._plots: dict[str, object] = {}
-        self._scene = None
+        self.settings = _Settings(parse_mode("cir"), (float(tm.sun_zenith_deg), float(tm.sun_azimuth_deg) % 360.0))
+        self._good: dict[str, object] = {}
         server.scene.set_up_direction("+z")
+        self._initial_camera()
         self._build_gui()
+        self.cameras = CameraPanel(tm, server, opts, self.lock_for_render)
         self._add_frustums()
         server.on_client_connect(self._connect)
         server.on_client_disconnect(self._disconnect)
@@ -85,57 +121,116 @@ class Viewer:
 
     def _build_gui(self) -> None:
         gui, tm = self.server.gui, self.tm
-        with gui.add_folder("Display"):
+        wl = np.asarray(tm.wavelengths_nm, float)
+        self.band_range_nm = (float(wl.min()), float(wl.max()))
+        with gui.add_folder("Display") as self.display_folder:
             self.mode = gui.add_dropdown("Mode", DISPLAY_CHOICES, initial_value="cir")
-            self.band = gui.add_number("Band (nm)", 860.0, min=float(tm.wavelengths_nm.min()),
-                                       max=float(tm.wavelengths_nm.max()), step=1.0)
+            self.band = gui.add_number("Band (nm)", float(np.clip(860.0, *self.band_range_nm)),
+                                       min=self.band_range_nm[0], max=self.band_range_nm[1], step=1.0)
             self.formula = gui.add_text("Index formula", NDVI)
-            self.status = gui.add_markdown("")
         with gui.add_folder("Sun"):
-            self.sun_z = gui.add_slider("Sun zenith (deg)", 0.0, 85.0, 0.5, float(tm.sun_zenith_deg))
-            self.sun_a = gui.add_slider("Sun azimuth (deg)", 0.0, 360.0, 1.0, float(tm.sun_azimuth_deg) % 360.0)
+            self.sun_z = gui.add_slider("Sun zenith (deg)", *SUN_ZENITH_DEG, 0.5,
+                                        float(np.clip(tm.sun_zenith_deg, *SUN_ZENITH_DEG)))
+            self.sun_a = gui.add_slider("Sun azimuth (deg)", *SUN_AZIMUTH_DEG, 1.0, float(tm.sun_azimuth_deg) % 360.0)
             reset = gui.add_button("Reset to the acquisition's sun")
             gui.add_markdown(SHADOW_NOTE)
-        with gui.add_folder("ROI (click the surface)"):
-            self.pick = gui.add_checkbox("Click picks an ROI", True)
-            self.radius = gui.add_slider("ROI radius (m)", 0.1, 50.0, 0.1,
-                                         float(np.clip(5.0 * training_footprint_m(tm), 0.1, 50.0)))
-            self.roi_text = gui.add_markdown("Click on the surface to pick a region.")
-            save = gui.add_button("Save ROI (CSV + GeoJSON)")
-        self.compare_folder = gui.add_folder("Camera comparison")
-        for h in (self.mode, self.band, self.formula, self.sun_z, self.sun_a):
-            h.on_update(lambda _e: self.redraw_all())
+        self.rois = RoiPanel(tm, self.server, self.opts, self.lock_for_render, self.wait_for_frames)
+        self.pick, self.radius = self.rois.pick_box, self.rois.radius
+        checks = {"mode": (self.mode, self._check_mode), "band": (self.band, self._check_band),
+                  "sun_z": (self.sun_z, lambda v: checked_number(v, *SUN_ZENITH_DEG, "Sun zenith (deg)")),
+                  "sun_a": (self.sun_a, lambda v: checked_number(v, *SUN_AZIMUTH_DEG, "Sun azimuth (deg)")),
+                  "radius": (self.radius, lambda v: checked_number(v, *ROI_RADIUS_M, "ROI radius (m)"))}
+        for key, (handle, check) in checks.items():
+            self._good[key] = handle.value
+            handle.on_update(lambda e, key=key, handle=handle, check=check: self._checked(e, key, handle, check))
+        self.formula.on_update(self._formula_changed)
         reset.on_click(lambda _e: self.reset_sun())
-        save.on_click(lambda e: self._save(e.client))
+
+    def _check_mode(self, value) -> str:
+        if value not in DISPLAY_CHOICES:
+            raise UserError(f"display mode {str(value)[:40]!r} is not one of {', '.join(DISPLAY_CHOICES)}",
+                            field="Mode")
+        return value
+
+    def _check_band(self, value) -> float:
+        return checked_number(value, *self.band_range_nm, "Band (nm)")
+
+    def _checked(self, event, key: str, handle, check) -> None:
+        """A widget changed: keep a valid value and apply it, or put the last valid one back and tell
+        the browser that sent it."""
+        try:
+            check(handle.value)
+        except UserError as exc:
+            self.tell(event.client, exc)
+            handle.value = self._good[key]
+            return
+        self._good[key] = handle.value
+        if key in ("sun_z", "sun_a"):
+            with self.lock:
+                self.settings = replace(self.settings, sun=(float(self._good["sun_z"]), float(self._good["sun_a"])))
+            self.redraw_all()
+        elif key in ("mode", "band"):
+            self._apply_display(event)
+
+    def _formula_changed(self, event) -> None:
+        """A formula is checked when it is typed (whatever the mode), applied in index mode."""
+        try:
+            parse_formula(self.formula.value)
+        except UserError as exc:
+            self.tell(event.client, exc)
+            return
+        self._apply_display(event)
+
+    def _apply_display(self, event) -> None:
+        """The display mode of the (checked) widgets, or the browser told why it is not applied."""
+        try:
+            mode = parse_mode(self.mode_text())
+        except UserError as exc:
+            self.tell(event.client, exc)
+            return
+        with self.lock:
+            self.settings = replace(self.settings, mode=mode)
+        self.redraw_all()
+
+    def tell(self, client, exc: UserError) -> None:
+        """Say in one line why a value from ``client`` was not applied."""
+        if client is not None:
+            client.add_notification("Not applied", str(exc), auto_close_seconds=8.0, color="red")
 
     def mode_text(self) -> str:
         """The display mode string of the widgets (band:<nm>, index:<formula> or the choice)."""
-        m = self.mode.value
+        m = self._good.get("mode", self.mode.value)
         if m == "band":
-            return f"band:{float(self.band.value):g}"
+            return f"band:{float(self._good.get('band', self.band.value)):g}"
         if m == "index":
             return f"index:{self.formula.value}"
-        return m
+        return str(m)
 
     def sun(self) -> tuple[float, float]:
-        return float(self.sun_z.value), float(self.sun_a.value)
+        return self.settings.sun
 
     def reset_sun(self) -> None:
         """Sliders back to the acquisition's sun (this redraws)."""
-        self.sun_z.value = float(self.tm.sun_zenith_deg)
+        self.sun_z.value = float(np.clip(self.tm.sun_zenith_deg, *SUN_ZENITH_DEG))
         self.sun_a.value = float(self.tm.sun_azimuth_deg) % 360.0
+
+    def _initial_camera(self) -> None:
+        """Pages open on an oblique overview from beyond the cameras, looking at the scene centre."""
+        tm, ic = self.tm, self.server.initial_camera
+        centre, dist = tm.scene_centre_m(), 1.3 * tm.typical_distance_m()
+        ic.position = pose_from_view_angles(37.0, 65.0, dist, centre)[:3, 3]
+        ic.look_at = centre
+        ic.up = (0.0, 0.0, 1.0)
+        ic.fov = fov_from_intrinsics(tm.intrinsics)[0]
 
     # ------------------------------------------------------------------ clients and rendering
 
     def _connect(self, client) -> None:
-        st = _ClientState(client)
+        st = _ClientState(client, moved_at=time.perf_counter())  # the first frame small and fast, then full
+        with self.display_folder:
+            st.status = client.gui.add_markdown("")
         with self.lock:
             self.clients[client.client_id] = st
-        fr = self.tm.frames[0] if self.tm.frames else None
-        if fr is not None:
-            pos, wxyz = viser_from_c2w(np.asarray(fr["c2w"], float))
-            with client.atomic():
-                client.camera.position, client.camera.wxyz = pos, wxyz
         client.camera.on_update(lambda _cam: self._moved(st))
         threading.Thread(target=self._render_loop, args=(st,), daemon=True).start()
         st.dirty.set()
@@ -149,122 +244,92 @@ class Viewer:
 
     def _moved(self, st: _ClientState) -> None:
         st.moved_at = time.perf_counter()
-        st.need_full = True
+        st.camera_changed = True
         st.dirty.set()
 
     def redraw_all(self) -> None:
         with self.lock:
             states = list(self.clients.values())
         for st in states:
-            st.need_full = True
             st.dirty.set()
 
+    def lock_for_render(self):
+        """The render lock when renders from two threads must not overlap (:func:`_serial_lock`)."""
+        return _serial_lock(self.render_lock)
+
+    def wait_for_frames(self, max_s: float = 2.0) -> None:
+        """Return once no browser waits for a frame (at most ``max_s``): background work goes second."""
+        t_end = time.perf_counter() + max_s
+        while time.perf_counter() < t_end:
+            with self.lock:
+                busy = any(st.rendering or st.dirty.is_set() for st in self.clients.values())
+            if not busy:
+                return
+            time.sleep(0.005)
+
     def _render_loop(self, st: _ClientState) -> None:
-        """Per browser: a reduced frame on each camera change, a full frame once the camera rests."""
+        """Per browser: a reduced frame for each camera change, a full frame once no camera change
+        has come for ``settle_s`` (however long frames take) or at once for a settings change at
+        rest; the camera read when a frame starts is the newest (older updates are never rendered)."""
         while st.alive:
-            st.dirty.wait(timeout=self.opts.settle_s)
+            changed = st.dirty.wait(timeout=self.opts.settle_s)
             if not st.alive:
                 return
-            moving = time.perf_counter() - st.moved_at < self.opts.settle_s
-            if st.dirty.is_set():
+            if changed:
                 st.dirty.clear()
+                moving, st.camera_changed = st.camera_changed, False
                 self._draw(st, self.opts.moving_height_px if moving else self.opts.height_px)
                 st.need_full = moving
-            elif st.need_full and not moving:
+            elif st.need_full:
                 st.need_full = False
                 self._draw(st, self.opts.height_px)
 
     def _draw(self, st: _ClientState, height_px: int) -> None:
-        cam = st.client.camera
-        c2w = c2w_from_viser(np.asarray(cam.position), np.asarray(cam.wxyz))
-        intr = intrinsics_from_fov(float(cam.fov), float(cam.aspect), height_px)
+        """Render and send one frame of ``st``'s camera; any failure goes to its status line."""
+        st.rendering = True
+        moved_at = st.moved_at
         try:
-            with _serial_lock(self.render_lock):
-                res = render_frame(self.tm, c2w, intr, parse_mode(self.mode_text()), sun_zenith_deg=self.sun()[0],
-                                   sun_azimuth_deg=self.sun()[1], backend=self.opts.backend)
+            cam = st.client.camera
+            c2w, intr = client_view(cam.position, cam.wxyz, cam.fov, cam.image_width, cam.image_height, height_px)
+            s = self.settings
+            with self.lock_for_render():
+                res = render_frame(self.tm, c2w, intr, s.mode, sun_zenith_deg=s.sun[0], sun_azimuth_deg=s.sun[1],
+                                   backend=self.opts.backend)
+            st.client.scene.set_background_image(res.rgb, format="jpeg", jpeg_quality=90)
+            now = time.perf_counter()
+            st.log.append((now, now - moved_at, res.seconds, res.rgb.shape[0]))
+            if height_px == self.opts.height_px:
+                st.last = res
+            self._status(st, f"{res.rgb.shape[1]}×{res.rgb.shape[0]} px in {1000 * res.seconds:.0f} ms")
         except UserError as exc:
-            self.status.content = f"⚠ {exc}"
-            return
-        except Exception:  # a bug: keep the page alive, show where to look
+            self._status(st, f"⚠ {exc}")
+        except Exception as exc:  # a bug: keep serving this browser, show where to look
             traceback.print_exc()
-            self.status.content = "⚠ the frame failed (traceback in the terminal)"
-            return
-        st.client.scene.set_background_image(res.rgb, format="jpeg", jpeg_quality=90)
-        if height_px == self.opts.height_px:
-            st.last = res
-        self.status.content = f"{res.rgb.shape[1]}×{res.rgb.shape[0]} px in {1000 * res.seconds:.0f} ms"
+            self._status(st, f"⚠ the frame failed ({type(exc).__name__}); details in the terminal")
+        finally:
+            st.rendering = False
 
-    # ------------------------------------------------------------------ ROI
+    def _status(self, st: _ClientState, text: str) -> None:
+        if st.status is not None and st.status.content != text:
+            st.status.content = text
+
+    # ------------------------------------------------------------------ clicks and cameras
 
     def _on_click(self, event) -> None:
+        """A click (no modifier) on the scene: an ROI at the surface under it, when picking is on."""
         st = self.clients.get(event.client_id)
-        if not self.pick.value or st is None or st.last is None or event.screen_pos is None:
+        if st is None or not self.pick.value:
             return
-        fr = st.last
-        x, y = event.screen_pos  # normalised, (0, 0) top left
-        p = hit_point(fr.view.depth, fr.c2w, fr.intr, x * fr.intr.w, y * fr.intr.h, fr.view.alpha)
-        if p is None:
-            self.roi_text.content = "Nothing was hit there; click on the surface."
-            return
-        threading.Thread(target=self._analyse_safely, args=(p, fr), daemon=True).start()
-
-    def _analyse_safely(self, p: np.ndarray, fr: FrameResult) -> None:
         try:
-            with _serial_lock(self.render_lock):
-                self._analyse(p, fr)
+            x, y = screen_point(event.screen_pos)
+            cam = event.client.camera
+            c2w, intr = client_view(cam.position, cam.wxyz, cam.fov, cam.image_width, cam.image_height,
+                                    self.opts.height_px)
+            radius = checked_number(self.radius.value, *ROI_RADIUS_M, "ROI radius (m)")
         except UserError as exc:
-            self.roi_text.content = f"⚠ {exc}"
-        except Exception:  # a bug: keep the page alive, show where to look
-            traceback.print_exc()
-            self.roi_text.content = "⚠ the ROI analysis failed (traceback in the terminal)"
-
-    def _analyse(self, p: np.ndarray, fr: FrameResult) -> None:
-        """Spectrum at once, then the principal plane and polar map (slower) into the page."""
-        tm, o = self.tm, self.opts
-        roi = disc_roi(p, float(self.radius.value))
-        self.server.scene.add_icosphere("/roi", radius=float(self.radius.value), position=tuple(p),
-                                        color=(255, 0, 255), opacity=0.6)
-        res = roi_spectrum(tm, roi, fr.c2w, fr.intr, self.sun(), backend=o.backend)
-        self.roi = res
-        self.roi_text.content = (f"ROI at E {p[0]:.2f} m, N {p[1]:.2f} m, h {p[2]:.2f} m, radius "
-                                 f"{roi.radius_m:.2f} m: {res.n_pixels} px in this view. Computing the BRF…")
-        self._plot("spectrum", (res.wavelengths_nm, res.spectrum), ("wavelength (nm)", "reflectance"),
-                   "ROI spectrum (this view)")
-        roi_directional(tm, res, step_deg=o.roi_step_deg, polar_azimuths=o.polar_azimuths,
-                        polar_zeniths=o.polar_zeniths, backend=o.backend)
-        cols = tuple(res.pp_values[:, k] for k in range(res.pp_values.shape[1]))
-        self._plot("pp", (res.pp_signed_zenith_deg,) + cols,
-                   ("signed view zenith (deg)",) + tuple(f"{w:.0f} nm" for w in res.band_nm),
-                   "Principal-plane BRF (+ = sun side)")
-        img = polar_image(res.polar_zenith_deg, res.polar_azimuth_deg, res.polar_values[..., -1])
-        label = f"Polar BRF {res.band_nm[-1]:.0f} nm (north up)"
-        if "polar" in self._plots:
-            self._plots["polar"].image = img
-        else:
-            self._plots["polar"] = self.server.gui.add_image(img, label=label)
-        self.roi_text.content = self.roi_text.content.replace(" Computing the BRF…", " BRF ready.")
-
-    def _plot(self, key: str, data: tuple, names: tuple, title: str) -> None:
-        """A uPlot panel (created on first use, updated after)."""
-        data = tuple(np.nan_to_num(np.asarray(d, np.float64), nan=0.0) for d in data)
-        if key in self._plots:
-            self._plots[key].data = data
+            self.tell(event.client, exc)
             return
-        colours = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e")
-        series = (viser.uplot.Series(label=names[0]),) + tuple(
-            viser.uplot.Series(label=n, stroke=colours[i % len(colours)], width=2) for i, n in enumerate(names[1:]))
-        self._plots[key] = self.server.gui.add_uplot(data, series, title=title, aspect=1.4)
-
-    def _save(self, client) -> None:
-        if self.roi is None:
-            client.add_notification("No ROI yet", "Click on the surface first.", auto_close_seconds=4.0)
-            return
-        self.n_saved += 1
-        out = Path(self.opts.out_dir or "viewer_rois") / f"roi_{self.n_saved:02d}"
-        paths = save_roi(self.roi, out)
-        client.add_notification("ROI saved", f"{len(paths)} files in {out}", auto_close_seconds=6.0)
-
-    # ------------------------------------------------------------------ cameras
+        self.rois.pick(c2w, intr, x, y, radius, self.settings.sun)
 
     def _add_frustums(self) -> None:
         tm = self.tm
@@ -275,36 +340,5 @@ class Viewer:
             colour = (40, 90, 220) if fr.get("split") == "train" else (230, 120, 20)
             h = self.server.scene.add_camera_frustum(f"/cameras/{fr['name']}", fov, aspect, scale=scale,
                                                      wxyz=wxyz, position=pos, color=colour)
-            h.on_click(lambda e, i=i: self._go_to_frame(e.client, i))
+            h.on_click(modifier="shift")(lambda e, i=i: self.cameras.go_to(e.client, i))
 
-    def _observed(self, i: int) -> np.ndarray | None:
-        """The observed cube of frame ``i`` from the training scene, when it can still be read."""
-        try:
-            if self._scene is None:
-                self._scene = open_model_scene(self.tm, None, required=False) or False
-            if not self._scene:
-                return None
-            names = [f.name for f in self._scene.frames]
-            name = self.tm.frames[i]["name"]
-            return self._scene.load_image(names.index(name)) if name in names else None
-        except UserError:
-            return None
-
-    def _go_to_frame(self, client, i: int) -> None:
-        """Move the browser's camera to frame ``i`` and show render | observation | error."""
-        fr = self.tm.frames[i]
-        pos, wxyz = viser_from_c2w(np.asarray(fr["c2w"], float))
-        with client.atomic():
-            client.camera.wxyz, client.camera.position = wxyz, pos
-        with _serial_lock(self.render_lock):
-            rgb, obs, err = frame_comparison(self.tm, i, self._observed(i), backend=self.opts.backend)
-        blank = np.full_like(rgb, 255)
-        panel = np.concatenate([rgb, blank[:, :4], obs if obs is not None else blank, blank[:, :4],
-                                err if err is not None else blank], axis=1)  # [H, 3W+8, 3]
-        label = f"{fr['name']} ({fr.get('split', '?')}): render | observation | error"
-        if obs is None:
-            label += " (scene not found: no observation)"
-        if "compare" in self._plots:
-            self._plots["compare"].remove()
-        with self.compare_folder:
-            self._plots["compare"] = self.server.gui.add_image(panel, label=label)
