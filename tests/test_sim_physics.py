@@ -206,3 +206,27 @@ def test_building_shadow_falls_away_from_the_sun():
     assert (mat == MATERIAL_IDS["concrete"]).all(), mat
     lit, shade = out["reflectance"][0, rows, cols, 0]
     assert shade < 0.5 * lit, (lit, shade)
+    assert out["sun_visibility"][0][rows, cols].tolist() == [1, 0]  # the shadow truth agrees
+
+
+@pytest.mark.parametrize("sun", [(38.0, 150.0), (55.0, 220.0)])
+def test_sun_visibility_truth_agrees_with_the_rendered_light(sun):
+    """The direct-sun visibility truth (a geometric ray test toward the sun) against the path-traced
+    image, an independent computation: on each ground material, the pixels it calls shadowed are far
+    darker than those it calls lit; the flat field has no shadow at all."""
+    cfg = SimConfig.tiny("testsite", bands=1, spp=16, wavelength_min_nm=650, wavelength_max_nm=651,
+                         sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1])
+    out = render_views(cfg, [(0.0, 0.0), (38.0, 60.0)], size=64)
+    vis, mat, refl = out["sun_visibility"], out["material"], out["reflectance"][..., 0]
+    assert set(np.unique(vis)) <= {0, 1, 255} and ((vis == 255) == (mat == 0)).all()
+    checked = 0
+    for name in ("grass", "soil", "concrete", "asphalt"):
+        on = mat == MATERIAL_IDS[name]
+        lit, shade = refl[on & (vis == 1)], refl[on & (vis == 0)]
+        if min(lit.size, shade.size) >= 15:
+            assert np.median(shade) < 0.6 * np.median(lit), (name, np.median(shade), np.median(lit))
+            checked += 1
+    assert checked >= 2
+    flat = render_views(SimConfig.tiny("flat", bands=1, spp=1, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1]),
+                        [(0.0, 0.0), (58.0, 300.0)], size=20)
+    assert (flat["sun_visibility"] == 1).all()

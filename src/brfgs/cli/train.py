@@ -93,19 +93,22 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Argument(..., help="Run folder of brfgs train."),
         options: dict | None = None,
     ) -> None:
-        """Render and score the views of --split (the test views by default); write OUT/metrics.json (per view,
+        """Render and score the views of --split (the test views by default), or those of another flight of the
+        same site (--scene), each under its own sun; write OUT/metrics.json (per view,
         per view ring and mean, with each held-out view's angle to the nearest training view; on simulated scenes
         also per material, with the rendered opacity and the ray-wise depth spread), ENVI renders and CIR
         comparison PNGs."""
         from brfgs.evaluation.evaluate import evaluate_run, metrics_file, summary_lines
 
         o = apply_options(EvaluateOptions(), options).validate()
-        res = evaluate_run(out, o.scene, backend=o.backend, write_images=o.images, progress=not o.quiet, split=o.split)
+        res = evaluate_run(out, o.scene, backend=o.backend, write_images=o.images, progress=not o.quiet, split=o.split,
+                           sun=o.sun)
         for line in summary_lines(res):
             typer.echo(line)
-        typer.echo(f"metrics: {out / metrics_file(o.split)}")
+        dest = Path(res["evaluation"]["folder"])
+        typer.echo(f"metrics: {dest / metrics_file(o.split)}")
         if o.images and o.split == "test":
-            typer.echo(f"renders: {out / 'eval' / 'renders'}  CIR comparisons: {out / 'eval' / 'cir'}")
+            typer.echo(f"renders: {dest / 'eval' / 'renders'}  CIR comparisons: {dest / 'eval' / 'cir'}")
 
     @config_command(app, "ablate", AblateOptions, skip=tuple("train_" + f for f in STUDY_FIELDS))
     def ablate_cmd(

@@ -7,6 +7,12 @@ angle to the nearest training view, "nearest_train_view_deg"; "observed" = the t
 ``<scene>/truth/images/<name>.hdr`` when present), ENVI renders
 ``OUT/eval/renders/<name>.hdr`` and side-by-side CIR PNGs with error maps
 ``OUT/eval/cir/<name>.png``.
+
+Another flight of the same site (``--scene OTHER`` whose frames are not the model's: another hour,
+day or sun) is rendered from each of its frames' own cameras under each frame's own sun and
+scored the same way; its results go to ``OUT/evaluate/<OTHER folder>-sun-scene/`` so that the
+run's own metrics stay. ``sun="model"`` renders every view under the sun the model was trained
+under instead (what the model predicts without relighting), into ``...-sun-model/``.
 """
 
 from __future__ import annotations
@@ -27,7 +33,9 @@ from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
 from brfgs.data.splits import split_rule_of
 from brfgs.errors import UserError
-from brfgs.model import MODEL_FILE, TrainedModel, render
+from brfgs.model import MODEL_FILE, TrainedModel, camera_from_intrinsics, render
+
+SUN_SOURCES = ("scene", "model")
 
 
 
@@ -47,11 +55,58 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "te
     where = root / "transforms.json"
     if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
         raise UserError("the scene's wavelengths differ from the model's", file=where, field="wavelengths_nm")
-    if [f.name for f in scene.frames] != [f["name"] for f in lm.scene["frames"]]:
-        raise UserError("the scene's frames differ from those the model was trained on", file=where, field="frames")
+    if another_scene(lm, scene):
+        _check_same_site(lm, scene, where)
     if not scene.indices_of(split):
         raise UserError(f"the scene has no {split} views", file=where, field="frames")
     return scene
+
+
+def another_scene(lm: TrainedModel, scene) -> bool:
+    """True when ``scene`` is not the flight the model was trained on: other frame names, or the same
+    names under other suns (two flights of one layout at another hour)."""
+    if [f.name for f in scene.frames] != [f["name"] for f in lm.scene["frames"]]:
+        return True
+    for i, f in enumerate(scene.frames):
+        sun = (f.sun_zenith_deg, f.sun_azimuth_deg) if np.isfinite(f.sun_zenith_deg) else (
+            scene.sun_zenith_deg, scene.sun_azimuth_deg)
+        if not np.allclose(sun, lm.frame_sun(i), rtol=0.0, atol=1e-6):
+            return True
+    return False
+
+
+def _check_same_site(lm: TrainedModel, scene, where: Path) -> None:
+    """Another flight must share the model's world frame: both georeferenced at the same origin (within
+    0.01 m), or neither georeferenced (then the poses must share one local frame: the user's word)."""
+    mine = lm.scene.get("origin")
+    theirs = scene.origin.to_json() if getattr(scene, "origin", None) else None
+    if (mine is None) != (theirs is None):
+        which = "the model's scene" if mine is not None else "this scene"
+        raise UserError(f"only {which} is georeferenced: another flight must share the model's frame "
+                        "(give both scenes the same origin)", file=where, field="origin")
+    if mine is not None:
+        lat = np.radians(float(mine["latitude_deg"]))
+        d = float(np.hypot(6378137.0 * np.radians(float(theirs["latitude_deg"]) - float(mine["latitude_deg"])),
+                           6378137.0 * np.cos(lat) * np.radians(float(theirs["longitude_deg"])
+                                                                - float(mine["longitude_deg"]))))
+        d = float(np.hypot(d, float(theirs.get("altitude_m", 0.0)) - float(mine.get("altitude_m", 0.0))))
+        if d > 0.01:
+            raise UserError(f"the scene's origin is {d:.2f} m from the model's: another flight must share the "
+                            "model's ENU origin (co-registered flights)", file=where, field="origin")
+
+
+def _view(lm: TrainedModel, scene, i: int, other: bool, sun: str):
+    """(camera, sun zenith, sun azimuth) of frame ``i``: the model's camera and the frame's own sun, or for
+    another flight the scene's camera and sun; ``sun="model"``: the sun the model was trained under."""
+    f = scene.frames[i]
+    cam = camera_from_intrinsics(f.c2w, scene.intrinsics, f.name) if other else lm.cameras[i]
+    if sun == "model":
+        return cam, lm.sun_zenith_deg, lm.sun_azimuth_deg
+    if not other:
+        return (cam, *lm.frame_sun(i))
+    if np.isfinite(f.sun_zenith_deg):
+        return cam, float(f.sun_zenith_deg), float(f.sun_azimuth_deg)
+    return cam, float(scene.sun_zenith_deg), float(scene.sun_azimuth_deg)
 
 
 def _references(scene, i: int) -> dict:
@@ -65,7 +120,7 @@ def _references(scene, i: int) -> dict:
     return refs
 
 
-def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.ndarray, ref_cir: np.ndarray,
+def _material_pixels(lm: TrainedModel, cam, scene, i: int, backend: str, r, ref: np.ndarray, ref_cir: np.ndarray,
                      ok: np.ndarray) -> dict | None:
     """Per-material pixels of view ``i`` against the truth (:func:`brfgs.evaluation.by_material.view_pixels`),
     or None when the scene has no material maps for it."""
@@ -74,24 +129,24 @@ def _material_pixels(lm: TrainedModel, scene, i: int, backend: str, r, ref: np.n
     maps = by_material.truth_maps(scene, i, r.cir.shape[:2])
     if maps is None:
         return None
-    cam = lm.cameras[i]
     alpha, depth, spread, normal = by_material.ray_depth_moments(lm, cam, backend)
     return by_material.view_pixels(maps[0], r.cir, ref_cir, ok, alpha, depth, spread, maps[1],
                                    r.cube if lm.spectral else None, ref if lm.spectral else None,
                                    (normal, cam.viewmat.numpy(), cam.K.numpy()))
 
 
-def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None) -> tuple[dict, dict | None]:
-    """({against: metrics}, per-material pixels against the truth or None) of held-out view ``i``;
-    with ``out``, the CIR comparison PNGs and the ENVI render."""
+def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None, other: bool = False,
+                sun: str = "scene") -> tuple[dict, dict | None]:
+    """({against: metrics}, per-material pixels against the truth or None) of held-out view ``i`` (of
+    another flight when ``other``); with ``out``, the CIR comparison PNGs and the ENVI render."""
     name = scene.frames[i].name
-    sun_z, sun_a = lm.frame_sun(i)                               # a held-out view under its own sun
-    r = render(lm, lm.cameras[i], sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend)
+    cam, sun_z, sun_a = _view(lm, scene, i, other, sun)          # a held-out view under its own sun
+    r = render(lm, cam, sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend)
     scores, materials = {}, None
     for against, (ref, ok) in _references(scene, i).items():
         ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)
         if against == "truth":
-            materials = _material_pixels(lm, scene, i, backend, r, ref, ref_cir, ok)
+            materials = _material_pixels(lm, cam, scene, i, backend, r, ref, ref_cir, ok)
         m = M.image_metrics(r.cube, ref, r.cir, ref_cir, ok, spectral=lm.spectral,
                             spectral_reason="RGB-style model trained on CIR composites: no spectra (SAM '-')")
         scores[against] = m = {"name": name, **m}
@@ -148,10 +203,12 @@ def material_means(by_view: dict[str, dict], rings: dict[str, str], names: dict[
 
 def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, backend: str | None = None,
                  write_images: bool = True, progress: bool = True, model_file: str = MODEL_FILE,
-                 split: str = "test") -> dict:
+                 split: str = "test", sun: str = "scene") -> dict:
     """Evaluate the trained model of ``out_dir`` on its ``split`` views ("test", "validation" for
     a run trained with ``--validation``, or "train": the fit of its own training views); writes and
-    returns the metrics dict (metrics.json, metrics_validation.json or metrics_train.json).
+    returns the metrics dict (metrics.json, metrics_validation.json or metrics_train.json), whose
+    "evaluation" block says where (``OUT``, or ``OUT/evaluate/<scene>-sun-<sun>`` for another flight
+    or ``sun="model"``: see the module docstring).
 
     ``backend`` None: the rasterizer backend the model was trained with (recorded in
     metrics.json), so that the evaluation at the end of ``brfgs train`` and a later
@@ -163,31 +220,36 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
         raise UserError(f"no {model_file}: train first (brfgs train SCENE {out})", file=out)
     lm = TrainedModel.load(mpath)
     backend = backend or lm.config.get("backend", "auto")
+    if sun not in SUN_SOURCES:
+        raise UserError(f"sun must be one of {', '.join(SUN_SOURCES)}, got {sun!r}", field="--sun")
     scene = _scene_for(lm, scene_path, split)
+    other = another_scene(lm, scene)
+    dest = out if not other and sun == "scene" else out / "evaluate" / f"{Path(scene.root).resolve().name}-sun-{sun}"
     views = {"observed": [], "truth": []}
     by_mat: dict[str, dict] = {}                              # view name -> per-material pixels
     t0 = time.perf_counter()
-    images_out = out if write_images and split == "test" else None
+    images_out = dest if write_images and split == "test" else None
     for i in tqdm(scene.indices_of(split), desc=f"evaluate ({split})", leave=False, disable=not progress):
-        scores, materials = _score_view(lm, scene, i, backend, images_out)
+        scores, materials = _score_view(lm, scene, i, backend, images_out, other, sun)
         for against, m in scores.items():
             views[against].append(m)
         if materials is not None:
             by_mat[scene.frames[i].name] = materials
     rings, record = scene.rings(), scene.split_record()
-    nearest = record["nearest_train_view_deg"]                 # held-out views only
+    nearest = {} if other else record["nearest_train_view_deg"]  # held-out views of the model's own flight
     for v in views["observed"] + views["truth"]:
         if v["name"] in nearest:
             v["nearest_train_view_deg"] = nearest[v["name"]]
     result = {"scene": scene.name, "scene_root": str(Path(scene.root).resolve()), "model": _model_name(lm),
               "evaluated_split": split, "split": record, "settings": _settings(lm, scene, backend),
+              "evaluation": {"another_scene": other, "sun": sun, "folder": str(dest.resolve())},
               "against": {k: {"mean": M.mean_metrics(v), "rings": ring_means(v, rings), "views": v}
                           for k, v in views.items() if v}}
     if by_mat and "truth" in result["against"]:
         result["against"]["truth"]["materials"] = material_means(by_mat, rings, by_material.material_names(
             scene.truth_dir))
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
-    atomic.write_json(out / metrics_file(split), result)
+    atomic.write_json(dest / metrics_file(split), result)
     return result
 
 

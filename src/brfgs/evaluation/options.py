@@ -15,9 +15,13 @@ class EvaluateOptions:
     """Which views of a run are scored, against which scene, and what is written."""
 
     scene: Optional[Path] = field(default=None, metadata={
-        "help": "Scene folder (default: the one recorded in the model)."})
+        "help": "Scene folder (default: the one recorded in the model); another flight of the same site is "
+                "rendered from its own cameras and scored into RUN/evaluate/<scene>-sun-<sun>/."})
     split: str = field(default="test", metadata={
         "help": "Views to score: test (metrics.json), validation (metrics_validation.json) or train (the fit)."})
+    sun: str = field(default="scene", metadata={
+        "help": "Sun of each rendered view: scene (each frame's own) or model (the sun the model was trained "
+                "under: the prediction without relighting)."})
     backend: Optional[str] = field(default=None, metadata={
         "help": "Rasterizer: auto, torch, cpu or cuda (default: the one the model was trained with)."})
     images: bool = field(default=True, metadata={"help": "Write ENVI renders and CIR comparison PNGs.",
@@ -27,6 +31,8 @@ class EvaluateOptions:
     def validate(self) -> "EvaluateOptions":
         if self.split not in SPLITS:
             raise UserError(f"split must be one of {', '.join(SPLITS)}, got {self.split!r}", field="--split")
+        if self.sun not in ("scene", "model"):
+            raise UserError(f"sun must be scene or model, got {self.sun!r}", field="--sun")
         return self
 
 

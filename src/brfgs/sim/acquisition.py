@@ -84,7 +84,8 @@ def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: 
             centre) from ``distance_m``.
         size, spp, distance_m: override the config's values; ``bands``: band indices (default all).
     Returns a dict: ``reflectance`` [V, H, W, B'] float32, ``depth`` [V, H, W] (m along the optical
-    axis), ``material`` [V, H, W] int16, ``c2w`` [V, 4, 4] (OpenGL), ``intrinsics``, ``wavelengths_nm``.
+    axis), ``material`` [V, H, W] int16, ``sun_visibility`` [V, H, W] uint8 (1 lit, 0 shadowed, 255 nothing hit),
+    ``c2w`` [V, 4, 4] (OpenGL), ``intrinsics``, ``wavelengths_nm``.
     The Monte Carlo seed depends only on (seed, view direction), so a view of the acquisition is
     reproduced exactly when size, spp and bands match.
     """
@@ -98,7 +99,7 @@ def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: 
     _, rend = _make_renderer(cfg, bands, spp)
     intr = cfg.intrinsics(size)
     dist = float(cfg.distance_m if distance_m is None else distance_m)
-    refl, depth, mats, c2ws = [], [], [], []
+    refl, depth, mats, lit, c2ws = [], [], [], [], []
     it = views
     if progress:
         it = tqdm(views, desc="render views", unit="view")
@@ -108,10 +109,11 @@ def render_views(cfg: SimConfig, view_angles_deg, size: int | None = None, spp: 
         d, m = rend.raycast(c2w, intr)
         depth.append(d)
         mats.append(m)
+        lit.append(rend.sun_visibility(c2w, intr))
         c2ws.append(c2w)
     wl = cfg.wavelengths_nm() if bands is None else cfg.wavelengths_nm()[list(bands)]
     return {"reflectance": np.stack(refl), "depth": np.stack(depth), "material": np.stack(mats),
-            "c2w": np.stack(c2ws), "intrinsics": intr, "wavelengths_nm": wl}
+            "sun_visibility": np.stack(lit), "c2w": np.stack(c2ws), "intrinsics": intr, "wavelengths_nm": wl}
 
 
 def render_scene_views(scene_dir: str | Path, view_angles_deg, **kwargs) -> dict:
@@ -257,9 +259,11 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
         rend.set_sun(float(sun_z[i]), float(sun_a[i]))
         clean = rend.render_cube(c2w, grid, render_seed(cfg.seed, z, a))
         depth, mat = rend.raycast(c2w, grid)
+        lit = rend.sun_visibility(c2w, grid)
         if maps is not None:                             # an OPENCV lens: the pinhole render resampled
             clean, depth = to_distorted(clean, maps), to_distorted(depth.astype(np.float32), maps)
             mat = to_distorted(mat.astype(np.float32), maps, nearest=True).astype(np.int16)
+            lit = np.nan_to_num(to_distorted(lit.astype(np.float32), maps, nearest=True), nan=255).astype(np.uint8)
         rng = np.random.default_rng([int(cfg.seed), 7, i])
         obs = observe(clean * np.float32(scales[i]), sigma, float(cfg.shot_coeff), rng)
         write_envi(out / "images" / f"{name}.hdr", obs, wl, fwhm)
@@ -268,6 +272,8 @@ def _acquire_views(out: Path, cfg: SimConfig, rend, done: list[str], progress: b
         (out / "truth" / "materials").mkdir(parents=True, exist_ok=True)
         atomic.save_npy(out / "truth" / "depth" / f"{name}.npy", depth.astype(np.float32))
         atomic.save_npy(out / "truth" / "materials" / f"{name}.npy", mat.astype(np.int16))
+        (out / "truth" / "sun_visibility").mkdir(parents=True, exist_ok=True)
+        atomic.save_npy(out / "truth" / "sun_visibility" / f"{name}.npy", lit)
         if is_preview:
             preview_of[name] = obs
         done.append(name)
@@ -354,7 +360,10 @@ def _write_truth_tables(out: Path, cfg: SimConfig, geom, rend) -> None:
         "parts": [{"name": p.name, "material": p.material, "n_triangles": int(len(p.faces))} for p in geom.parts],
         "objects": geom.objects,
         "depth": "truth/depth/<name>.npy: float32 [H, W], metres along the optical axis through the pixel "
-                 "centre, NaN where nothing is hit"})
+                 "centre, NaN where nothing is hit",
+        "sun_visibility": "truth/sun_visibility/<name>.npy: uint8 [H, W], direct sun at the surface through the "
+                          "pixel centre under that view's sun: 1 lit, 0 shadowed by the scene's geometry (leaves "
+                          "block it entirely), 255 where nothing is hit"})
 
 
 def _reference_sun(cfg: SimConfig) -> dict:

@@ -321,18 +321,34 @@ class BandTripletRenderer:
             out[..., k:k + len(chunk)] = img[..., :len(chunk)]
         return out
 
+    def _pixel_hits(self, c2w_gl: np.ndarray, intr: Intrinsics):
+        """(Mitsuba surface interactions, ray directions [H·W, 3]) of the rays through the pixel centres."""
+        mi = self.mi
+        o, d = pixel_rays(c2w_gl, intr)  # [H, W, 3] each
+        o = o.reshape(-1, 3)
+        d = d.reshape(-1, 3)
+        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.ascontiguousarray(o[:, k], np.float32)) for k in range(3)]),
+                       mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, k], np.float32)) for k in range(3)]))
+        return self.scene.ray_intersect(ray), d
+
+    def sun_visibility(self, c2w_gl: np.ndarray, intr: Intrinsics) -> np.ndarray:
+        """Direct-sun visibility [H, W] (uint8) of the surface through each pixel centre, for the current
+        sun: 1 lit, 0 in the shadow of the scene's geometry (a ray toward the sun is blocked), 255 where the
+        pixel's ray hits nothing. Leaves block the sun entirely here (their transmission is not counted)."""
+        mi = self.mi
+        si, _ = self._pixel_hits(c2w_gl, intr)
+        to_sun = direction_from_angles_deg(*self.sun_deg)  # [3] unit, toward the sun
+        blocked = np.asarray(self.scene.ray_test(si.spawn_ray(mi.Vector3f(*[float(v) for v in to_sun]))), bool)
+        valid = np.asarray(si.is_valid(), bool)
+        return np.where(valid, np.where(blocked, 0, 1), 255).astype(np.uint8).reshape(intr.h, intr.w)
+
     def raycast(self, c2w_gl: np.ndarray, intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
         """Depth [H, W] (m along the optical axis, NaN where nothing is hit) and material id [H, W] (int16)
         of the surfaces through the pixel centres."""
         mi = self.mi
         import drjit as dr  # lazy: like mitsuba, only after setup_mitsuba has set DRJIT_LIBLLVM_PATH
 
-        o, d = pixel_rays(c2w_gl, intr)  # [H, W, 3] each
-        o = o.reshape(-1, 3)
-        d = d.reshape(-1, 3)
-        ray = mi.Ray3f(mi.Point3f(*[mi.Float(np.ascontiguousarray(o[:, k], np.float32)) for k in range(3)]),
-                       mi.Vector3f(*[mi.Float(np.ascontiguousarray(d[:, k], np.float32)) for k in range(3)]))
-        si = self.scene.ray_intersect(ray)
+        si, d = self._pixel_hits(c2w_gl, intr)
         t = np.asarray(si.t, np.float64)
         valid = np.asarray(si.is_valid(), bool)
         rid = np.asarray(dr.reinterpret_array(mi.UInt32, si.shape), np.int64)

@@ -1,0 +1,85 @@
+"""`brfgs evaluate RUN --scene OTHER` on another flight of the same site: each of OTHER's frames is
+rendered from its own camera under its own sun (or, with --sun model, under the sun the model was
+trained under) and scored into RUN/evaluate/, leaving the run's own metrics alone; flights that do
+not share the model's frame are refused in one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from brfgs.cli import main
+from brfgs.data import read_scene
+from brfgs.model import TrainedModel, camera_from_intrinsics, render
+from test_train_cli import TINY
+
+SIM = ["--scene", "testsite", "--size", "32", "--bands", "8", "--views", "13", "--spp", "16", "--seed", "3", "-q"]
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    """Two flights of one site (same seed: same geometry and cameras) at two suns, and a run on the first."""
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("flights")
+    a, b, run = root / "sun35", root / "sun55", root / "run"
+    assert main(["simulate", str(a), *SIM, "--sun-zenith", "35", "--sun-azimuth", "150"]) == 0
+    assert main(["simulate", str(b), *SIM, "--sun-zenith", "55", "--sun-azimuth", "220"]) == 0
+    assert main(["train", str(a), str(run), *TINY, "--backend", "torch"]) == 0
+    return a, b, run
+
+
+def test_another_flight_is_rendered_under_its_own_sun_and_cameras(flights, capsys):
+    a, b, run = flights
+    own = (run / "metrics.json").read_bytes()
+    assert main(["evaluate", str(run), "--scene", str(b), "--quiet", "--backend", "torch"]) == 0
+    dest = run / "evaluate" / "sun55-sun-scene"
+    assert f"metrics: {dest.resolve() / 'metrics.json'}" in capsys.readouterr().out
+    m = json.loads((dest / "metrics.json").read_text())
+    assert m["evaluation"] == {"another_scene": True, "sun": "scene", "folder": str(dest.resolve())}
+    assert (run / "metrics.json").read_bytes() == own                # the run's own evaluation stays
+    assert m["against"]["truth"]["mean"]["psnr"] > 0
+    # each written render is the model seen from B's camera under B's sun (not the model's)
+    lm, sc = TrainedModel.load(run / "model.safetensors"), read_scene(b)
+    assert (lm.sun_zenith_deg, sc.sun_zenith_deg) == (35.0, 55.0)
+    i = sc.indices_of("test")[0]
+    f = sc.frames[i]
+    ref = render(lm, camera_from_intrinsics(f.c2w, sc.intrinsics, f.name), sun_zenith_deg=55.0,
+                 sun_azimuth_deg=220.0, backend="torch").cube
+    written = np.fromfile(dest / "eval" / "renders" / f"{f.name}.img", "<f4").reshape(ref.shape)
+    np.testing.assert_allclose(written, ref, rtol=1e-5, atol=1e-6)
+    # --sun model: the same views under the model's own sun, into their own folder
+    assert main(["evaluate", str(run), "--scene", str(b), "--sun", "model", "--quiet", "--no-images",
+                 "--backend", "torch"]) == 0
+    m2 = json.loads((run / "evaluate" / "sun55-sun-model" / "metrics.json").read_text())
+    assert m2["evaluation"]["sun"] == "model" and (run / "metrics.json").read_bytes() == own
+    assert m2["against"]["truth"]["mean"]["psnr"] != m["against"]["truth"]["mean"]["psnr"]
+    assert [v["name"] for v in m2["against"]["truth"]["views"]] == [v["name"] for v in m["against"]["truth"]["views"]]
+
+
+def test_the_model_sun_on_its_own_flight_keeps_the_run_metrics(flights):
+    a, b, run = flights
+    own = (run / "metrics.json").read_bytes()
+    assert main(["evaluate", str(run), "--sun", "model", "--quiet", "--no-images", "--backend", "torch"]) == 0
+    m = json.loads((run / "evaluate" / "sun35-sun-model" / "metrics.json").read_text())
+    assert m["evaluation"]["another_scene"] is False and (run / "metrics.json").read_bytes() == own
+
+
+def test_flights_outside_the_model_frame_are_refused(flights, tmp_path, capsys):
+    a, b, run = flights
+    geo = tmp_path / "geo"
+    assert main(["simulate", str(geo), *SIM, "--origin", "47.0,8.0,400"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--scene", str(geo), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "origin" in err[0] and "transforms.json" in err[0], err
+    other = tmp_path / "bands"
+    assert main(["simulate", str(other), *[x if x != "8" else "6" for x in SIM]]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(run), "--scene", str(other), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "wavelengths" in err[0], err
+    assert main(["evaluate", str(run), "--sun", "noon", "--quiet"]) == 2
+    assert "--sun" in capsys.readouterr().err
