@@ -56,7 +56,26 @@ def test_another_flight_is_rendered_under_its_own_sun_and_cameras(flights, capsy
     m2 = json.loads((run / "evaluate" / "sun55-sun-model" / "metrics.json").read_text())
     assert m2["evaluation"]["sun"] == "model" and (run / "metrics.json").read_bytes() == own
     assert m2["against"]["truth"]["mean"]["psnr"] != m["against"]["truth"]["mean"]["psnr"]
+    # cast shadows of the model's geometry under each sun, against B's truth
+    sh, sh2 = m["against"]["truth"]["shadows"], m2["against"]["truth"]["shadows"]
+    for x in (sh, sh2):
+        assert 0 <= x["accuracy"] <= 1 and x["n_pixels"] > 0 and 0 < x["shadow_share_truth"] < 0.5
+    assert sh["shadow_share_truth"] == sh2["shadow_share_truth"] and sh["n_pixels"] != 0
     assert [v["name"] for v in m2["against"]["truth"]["views"]] == [v["name"] for v in m["against"]["truth"]["views"]]
+
+
+def test_true_visibility_is_block_averaged_on_downscaled_scenes(flights, tmp_path):
+    from brfgs.evaluation.shadows import truth_visibility
+
+    a, _, _ = flights
+    full, half = read_scene(a), read_scene(a, downscale=2)
+    raw = np.load(a / "truth" / "sun_visibility" / f"{full.frames[0].name}.npy")
+    v1 = truth_visibility(full, 0, (full.height, full.width))
+    v2 = truth_visibility(half, 0, (half.height, half.width))
+    assert np.array_equal(np.isnan(v1), raw == 255) and np.array_equal(v1[raw != 255], raw[raw != 255])
+    blk = np.where(raw == 255, np.nan, raw.astype(float)).reshape(16, 2, 16, 2).mean(axis=(1, 3))
+    np.testing.assert_array_equal(v2, blk)
+    assert truth_visibility(full, 0, (8, 8)) is None                   # not the images' grid
 
 
 def test_the_model_sun_on_its_own_flight_keeps_the_run_metrics(flights):

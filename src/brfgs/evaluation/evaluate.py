@@ -25,6 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from brfgs.evaluation import by_material
+from brfgs.evaluation.shadows import ShadowScores, truth_visibility
 from brfgs.evaluation import metrics as M
 from brfgs.analysis.output import SPLITS, metrics_file
 from brfgs.analysis.plots import save_cir_comparison
@@ -229,8 +230,12 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     by_mat: dict[str, dict] = {}                              # view name -> per-material pixels
     t0 = time.perf_counter()
     images_out = dest if write_images and split == "test" else None
+    shadows = ShadowScores(lm, backend)
     for i in tqdm(scene.indices_of(split), desc=f"evaluate ({split})", leave=False, disable=not progress):
         scores, materials = _score_view(lm, scene, i, backend, images_out, other, sun)
+        true_vis = truth_visibility(scene, i, (scene.height, scene.width))
+        if true_vis is not None:
+            shadows.add(*_view(lm, scene, i, other, sun), true_vis)
         for against, m in scores.items():
             views[against].append(m)
         if materials is not None:
@@ -248,6 +253,8 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
     if by_mat and "truth" in result["against"]:
         result["against"]["truth"]["materials"] = material_means(by_mat, rings, by_material.material_names(
             scene.truth_dir))
+    if shadows.summary() is not None and "truth" in result["against"]:
+        result["against"]["truth"]["shadows"] = shadows.summary()
     result["settings"]["eval_seconds"] = time.perf_counter() - t0
     atomic.write_json(dest / metrics_file(split), result)
     return result
@@ -281,6 +288,10 @@ def summary_lines(result: dict) -> list[str]:
                 f"{r}° {v['psnr']:.2f} dB" + (f"/{v['sam']:.4f}" if v.get("sam") is not None else "")
                 + (f" [{v['nearest_train_view_deg']['mean']:.0f}°]" if v.get("nearest_train_view_deg") else "")
                 for r, v in rings.items() if v.get("psnr") is not None))
+        sh = block.get("shadows")
+        if sh and sh.get("iou") is not None:
+            lines.append(" " * 29 + f"cast shadows (model geometry vs truth): IoU {sh['iou']:.2f}, accuracy "
+                         f"{sh['accuracy']:.2f}, shadow share {sh['shadow_share_model']:.0%} vs {sh['shadow_share_truth']:.0%}")
         mats = list((block.get("materials") or {}).get("mean", {}).items())[:4]
         if mats:
             lines.append(" " * 29 + "largest error: " + ", ".join(

@@ -1,0 +1,83 @@
+"""Cast shadows against the truth of simulated scenes.
+
+The model's direct-sun visibility of each evaluated view (:mod:`brfgs.model.shadows`: the Gaussians
+seen from the sun, under the sun the view is rendered with) against ``truth/sun_visibility/<name>.npy``
+(the simulator's ray test toward the sun: 1 lit, 0 shadowed, 255 nothing hit). A pixel is in shadow
+when its visibility is below 0.5 (the truth block-averaged first when the scene is read downscaled);
+pixels the model does not cover (opacity < 0.1) or where the truth hits nothing are left out.
+Scores pool the pixels of all views: the shadow class's intersection over union, the accuracy, and
+the shadow share of each.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from brfgs.model import TrainedModel
+from brfgs.model.camera import Camera
+from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+
+__all__ = ["DEFINITION", "truth_visibility", "ShadowScores"]
+
+DEFINITION = ("direct-sun visibility of the model's geometry (a sun camera, brfgs.model.shadows) vs "
+              "truth/sun_visibility; shadow = visibility < 0.5; pixels with model opacity >= 0.1 where the truth "
+              "hits a surface; iou of the shadow class and accuracy pooled over the views' pixels")
+
+
+def truth_visibility(scene, i: int, shape: tuple[int, int]) -> np.ndarray | None:  # [H, W] in [0, 1] or NaN
+    """Frame ``i``'s true direct-sun visibility on the images' grid ``shape`` (the ROI cropped, blocks of
+    the scene's downscale averaged; NaN where nothing is hit), or None when the scene has none for it
+    (no truth, a frame with a camera of its own, or another grid)."""
+    td = scene.truth_dir
+    if td is None or scene.frames[i].camera is not None:
+        return None
+    p = Path(td) / "sun_visibility" / f"{scene.frames[i].name}.npy"
+    if not p.is_file():
+        return None
+    try:
+        raw = np.load(p, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    if raw.ndim != 2:
+        return None
+    f = scene.downscale
+    x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, raw.shape[1], raw.shape[0])
+    raw = raw[y0:y0 + h // f * f, x0:x0 + w // f * f]
+    if raw.shape != (shape[0] * f, shape[1] * f):
+        return None
+    v = np.where(raw == 255, np.nan, np.clip(raw.astype(np.float64), 0, 1))
+    return v.reshape(shape[0], f, shape[1], f).mean(axis=(1, 3))
+
+
+class ShadowScores:
+    """Pooled pixel counts of the model's shadows against the truth, over views rendered under any suns
+    (each sun's Gaussian visibilities computed once)."""
+
+    def __init__(self, model: TrainedModel, backend: str = "auto"):
+        self.model, self.backend = model, backend
+        self._visibility: dict[tuple[float, float], object] = {}
+        self.counts = np.zeros(4, np.int64)                  # both shadow, model only, truth only, both lit
+
+    def add(self, cam: Camera, sun_zenith_deg: float, sun_azimuth_deg: float, truth: np.ndarray) -> None:
+        """Score one view (``truth`` [H, W] from :func:`truth_visibility`)."""
+        key = (float(sun_zenith_deg), float(sun_azimuth_deg))
+        if key not in self._visibility:
+            self._visibility[key] = gaussian_sun_visibility(self.model, *key, backend=self.backend)
+        pred = sun_visibility_map(self.model, cam, self._visibility[key], backend=self.backend)  # [H, W]
+        ok = np.isfinite(pred) & np.isfinite(truth)
+        ps, ts = pred[ok] < 0.5, truth[ok] < 0.5
+        self.counts += [int((ps & ts).sum()), int((ps & ~ts).sum()), int((~ps & ts).sum()), int((~ps & ~ts).sum())]
+
+    def summary(self) -> dict | None:
+        """{"iou", "accuracy", "shadow_share_truth", "shadow_share_model", "n_pixels", "definition"}, or None
+        without pixels."""
+        both, model_only, truth_only, lit = (int(c) for c in self.counts)
+        n = both + model_only + truth_only + lit
+        if n == 0:
+            return None
+        union = both + model_only + truth_only
+        return {"iou": None if union == 0 else round(both / union, 4), "accuracy": round((both + lit) / n, 4),
+                "shadow_share_truth": round((both + truth_only) / n, 4),
+                "shadow_share_model": round((both + model_only) / n, 4), "n_pixels": n, "definition": DEFINITION}

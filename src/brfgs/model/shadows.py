@@ -1,0 +1,102 @@
+"""Direct-sun visibility from the model's own geometry: shadow mapping with a sun camera.
+
+A camera far out along the sun direction ω_s (:data:`SUN_DISTANCE_M`: over a scene of a few hundred
+metres its rays are parallel to ~1e-2 rad) sees the Gaussians as the sun does. It renders, per
+pixel, the opacity α_s and the opacity-weighted mean depth D of what the sun meets first. A Gaussian
+whose centre lies more than ``bias_m`` behind D at its projection is in that surface's shadow:
+
+    V_k = 1 − α_s(u_k, v_k) · [t_k > D(u_k, v_k) + bias]          (k: Gaussian, t: depth along ω_s)
+
+A view's visibility map is V rendered as a feature with the view's blending weights, divided by the
+view's opacity: the share of the surface seen in the pixel that the direct sun reaches (1 lit, 0 in
+shadow, NaN where the view sees nothing). The learned acquisition shadows are not in V: it is the
+geometry's answer for any sun.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from brfgs.data.cameras import Intrinsics, look_at_c2w
+from brfgs.model.camera import Camera, camera_from_intrinsics
+from brfgs.model.trained import TrainedModel
+from brfgs.model.view import render
+
+__all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_sun_visibility", "sun_visibility_map"]
+
+SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
+SUN_MAP_PX = 512           # the sun camera's image side (pixels)
+BIAS_SCALES = 2.0          # default bias: this many median Gaussian sizes (max axis)
+
+
+def sun_camera(means: Tensor, omega_sun: Tensor, size_px: int = SUN_MAP_PX) -> Camera:
+    """A square camera at :data:`SUN_DISTANCE_M` along ``omega_sun`` [3] (unit, toward the sun) from the
+    median of ``means`` [N, 3] (m), looking back at it, its field of view just holding 99.8 % of the
+    means (robust to far outliers)."""
+    m = means.detach().double().numpy()  # [N, 3]
+    centre = np.median(m, axis=0)
+    w = np.asarray(omega_sun, np.float64)
+    c2w = look_at_c2w(centre + SUN_DISTANCE_M * w, centre)
+    right, up, back = c2w[:3, 0], c2w[:3, 1], c2w[:3, 2]
+    rel = m - c2w[:3, 3]                                   # [N, 3]
+    depth = -(rel @ back)                                   # [N] > 0 in front
+    tan = np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / np.maximum(depth, 1e-6)
+    half = float(np.quantile(tan, 0.998)) * 1.02 + 1e-9
+    f = 0.5 * size_px / half
+    intr = Intrinsics(fl_x=f, fl_y=f, cx=0.5 * size_px, cy=0.5 * size_px, w=int(size_px), h=int(size_px))
+    return camera_from_intrinsics(c2w, intr, "sun")
+
+
+def _bilinear(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W], u, v [N] px -> [N]
+    """Bilinear sample at pixel coordinates (pixel centres at +0.5), edge-clamped."""
+    h, w = img.shape
+    x = (u - 0.5).clamp(0, w - 1)
+    y = (v - 0.5).clamp(0, h - 1)
+    x0, y0 = x.floor().long().clamp(max=w - 2 if w > 1 else 0), y.floor().long().clamp(max=h - 2 if h > 1 else 0)
+    fx, fy = x - x0, y - y0
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x1] * fx * (1 - fy)
+            + img[y1, x0] * (1 - fx) * fy + img[y1, x1] * fx * fy)
+
+
+@torch.no_grad()
+def gaussian_sun_visibility(model: TrainedModel, sun_zenith_deg: float, sun_azimuth_deg: float,
+                            size_px: int = SUN_MAP_PX, bias_m: float | None = None,
+                            backend: str = "auto") -> Tensor:  # [N] in [0, 1]
+    """V_k of every Gaussian for the sun (deg; see the module docstring). ``bias_m`` (m) default:
+    :data:`BIAS_SCALES` × the median of the Gaussians' largest axes."""
+    f = model.frozen()
+    means = f["means"]
+    cam = sun_camera(means, model.sun_direction(sun_zenith_deg, sun_azimuth_deg), size_px)
+    vm = cam.viewmat.to(means.dtype)
+    t = means @ vm[2, :3] + vm[2, 3]                               # [N] m along the sun ray
+    ref = t.median()
+
+    def depth_feature(idx: Tensor, omega_o: Tensor) -> Tensor:     # [n, 1] relative depth (float32-safe)
+        return (t[idx] - ref)[:, None]
+
+    rv = render(model, cam, features=depth_feature, decode=False, backend=backend)
+    alpha = torch.as_tensor(rv.alpha, dtype=means.dtype)           # [S, S]
+    d = torch.where(alpha > 1e-6, rv.image[..., 0].to(means.dtype) / alpha.clamp_min(1e-6), torch.zeros_like(alpha))
+    K = cam.K.to(means.dtype)
+    x, y = means @ vm[0, :3] + vm[0, 3], means @ vm[1, :3] + vm[1, 3]
+    u, v = K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2]    # [N] px
+    a_k, d_k = _bilinear(alpha, u, v), _bilinear(d, u, v)
+    bias = float(BIAS_SCALES * f["max_scale"].median()) if bias_m is None else float(bias_m)
+    behind = ((t - ref) > d_k + bias).to(means.dtype)
+    return (1.0 - a_k.clamp(0, 1) * behind).clamp(0, 1)
+
+
+@torch.no_grad()
+def sun_visibility_map(model: TrainedModel, cam: Camera, visibility: Tensor, backend: str = "auto",
+                       min_alpha: float = 0.1) -> np.ndarray:  # [H, W] float32
+    """The view's sun visibility: Gaussian visibilities ``visibility`` [N] blended by ``cam``'s weights
+    and divided by its opacity; NaN where the opacity is below ``min_alpha``."""
+    vis = visibility.to(model.frozen()["means"].dtype)
+    rv = render(model, cam, features=lambda idx, omega_o: vis[idx][:, None], decode=False, backend=backend)
+    a = rv.alpha.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(a >= min_alpha, rv.image[..., 0].numpy().astype(np.float64) / a, np.nan)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
