@@ -8,7 +8,7 @@ import typer
 
 from brfgs.cli import _options as opt
 from brfgs.cli._config import apply_options, config_command
-from brfgs.data.options import InspectOptions
+from brfgs.data.options import InspectOptions, MergeOptions
 
 # The command bodies import the library lazily, so that `brfgs --help` stays fast (no torch, no numba).
 
@@ -30,3 +30,17 @@ def register(app: typer.Typer) -> None:
         plot_views(sc, out / "views_polar.png")
         typer.echo(format_summary(summary))
         typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")
+
+    @config_command(app, "merge", MergeOptions)
+    def merge_cmd(out: Path = typer.Argument(..., help="New scene folder for the merged flights."),
+                  scenes: list[Path] = typer.Argument(..., help="Two or more co-registered flights of one site."),
+                  options: dict | None = None) -> None:
+        """One scene from several flights of a site (other hours or days): each frame under its own sun, each
+        flight's split kept; train on it to learn the site under several suns."""
+        from brfgs.workflows.merge_flights import merge_flights
+
+        o = apply_options(MergeOptions(), options)
+        merged = merge_flights(out, scenes, split_seed=o.split_seed)
+        for f in merged["flights"]:
+            typer.echo(f"{f['name']}: {f['frames']} frames from {f['source']}")
+        typer.echo(f"wrote {out / 'transforms.json'} ({len(merged['frames'])} frames)")

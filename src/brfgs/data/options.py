@@ -40,3 +40,11 @@ class InspectOptions:
     out: Optional[Path] = field(default=None, metadata={
         "help": "Folder for views_polar.png and summary.json (default: ./inspect_<scene>).", "aliases": ("-o",)})
     quiet: bool = field(default=False, metadata={"help": "No progress bar.", "aliases": ("-q",)})
+
+
+@dataclass
+class MergeOptions:
+    """Options of ``brfgs merge``: the split each flight keeps."""
+
+    split_seed: int = field(default=0, metadata={
+        "help": "Seed of each flight's train/test split (train with the same --split-seed)."})

@@ -32,6 +32,7 @@ from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
+from brfgs.data.georef import origin_distance_m
 from brfgs.data.splits import split_rule_of
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, camera_from_intrinsics, render
@@ -86,11 +87,7 @@ def _check_same_site(lm: TrainedModel, scene, where: Path) -> None:
         raise UserError(f"only {which} is georeferenced: another flight must share the model's frame "
                         "(give both scenes the same origin)", file=where, field="origin")
     if mine is not None:
-        lat = np.radians(float(mine["latitude_deg"]))
-        d = float(np.hypot(6378137.0 * np.radians(float(theirs["latitude_deg"]) - float(mine["latitude_deg"])),
-                           6378137.0 * np.cos(lat) * np.radians(float(theirs["longitude_deg"])
-                                                                - float(mine["longitude_deg"]))))
-        d = float(np.hypot(d, float(theirs.get("altitude_m", 0.0)) - float(mine.get("altitude_m", 0.0))))
+        d = origin_distance_m(mine, theirs)
         if d > 0.01:
             raise UserError(f"the scene's origin is {d:.2f} m from the model's: another flight must share the "
                             "model's ENU origin (co-registered flights)", file=where, field="origin")

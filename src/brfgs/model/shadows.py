@@ -27,14 +27,17 @@ from brfgs.model.view import render
 __all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_sun_visibility", "sun_visibility_map"]
 
 SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
-SUN_MAP_PX = 512           # the sun camera's image side (pixels)
-BIAS_SCALES = 2.0          # default bias: this many median Gaussian sizes (max axis)
+SUN_MAP_PX = 1024          # the sun camera's largest image side (pixels)
+BIAS_SCALES = 2.0          # default bias: this many median Gaussian sizes (largest axis)
+PIXEL_SCALES = 0.75        # sun camera pixel: this many median Gaussian sizes (within SUN_MAP_PX a side)
+SLABS = 96                 # depth planes of the sun camera's opacity map
 
 
-def sun_camera(means: Tensor, omega_sun: Tensor, size_px: int = SUN_MAP_PX) -> Camera:
+def sun_camera(means: Tensor, omega_sun: Tensor, size_px: int = SUN_MAP_PX, pixel_m: float | None = None) -> Camera:
     """A square camera at :data:`SUN_DISTANCE_M` along ``omega_sun`` [3] (unit, toward the sun) from the
     median of ``means`` [N, 3] (m), looking back at it, its field of view just holding 99.8 % of the
-    means (robust to far outliers)."""
+    means (robust to far outliers); ``size_px`` pixels a side, or fewer when ``pixel_m`` (m, at the
+    scene) asks for coarser pixels (at least 64)."""
     m = means.detach().double().numpy()  # [N, 3]
     centre = np.median(m, axis=0)
     w = np.asarray(omega_sun, np.float64)
@@ -44,18 +47,20 @@ def sun_camera(means: Tensor, omega_sun: Tensor, size_px: int = SUN_MAP_PX) -> C
     depth = -(rel @ back)                                   # [N] > 0 in front
     tan = np.maximum(np.abs(rel @ right), np.abs(rel @ up)) / np.maximum(depth, 1e-6)
     half = float(np.quantile(tan, 0.998)) * 1.02 + 1e-9
+    if pixel_m is not None and pixel_m > 0:
+        size_px = int(np.clip(np.ceil(2 * half * SUN_DISTANCE_M / pixel_m), 64, size_px))
     f = 0.5 * size_px / half
     intr = Intrinsics(fl_x=f, fl_y=f, cx=0.5 * size_px, cy=0.5 * size_px, w=int(size_px), h=int(size_px))
     return camera_from_intrinsics(c2w, intr, "sun")
 
 
-def _bilinear(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W], u, v [N] px -> [N]
-    """Bilinear sample at pixel coordinates (pixel centres at +0.5), edge-clamped."""
-    h, w = img.shape
+def _bilinear_rows(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W, C], u, v [N] px -> [N, C]
+    """Bilinear sample of every channel at pixel coordinates (pixel centres at +0.5), edge-clamped."""
+    h, w = img.shape[:2]
     x = (u - 0.5).clamp(0, w - 1)
     y = (v - 0.5).clamp(0, h - 1)
-    x0, y0 = x.floor().long().clamp(max=w - 2 if w > 1 else 0), y.floor().long().clamp(max=h - 2 if h > 1 else 0)
-    fx, fy = x - x0, y - y0
+    x0, y0 = x.floor().long().clamp(max=max(w - 2, 0)), y.floor().long().clamp(max=max(h - 2, 0))
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
     x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
     return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x1] * fx * (1 - fy)
             + img[y1, x0] * (1 - fx) * fy + img[y1, x1] * fx * fy)
@@ -63,30 +68,35 @@ def _bilinear(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W], u, v 
 
 @torch.no_grad()
 def gaussian_sun_visibility(model: TrainedModel, sun_zenith_deg: float, sun_azimuth_deg: float,
-                            size_px: int = SUN_MAP_PX, bias_m: float | None = None,
+                            size_px: int = SUN_MAP_PX, bias_m: float | None = None, slabs: int = SLABS,
                             backend: str = "auto") -> Tensor:  # [N] in [0, 1]
-    """V_k of every Gaussian for the sun (deg; see the module docstring). ``bias_m`` (m) default:
+    """V_k of every Gaussian for the sun (deg): the transmittance T_k along the sun's ray up to
+    ``bias_m`` (m) in front of the Gaussian's centre (see the module docstring). ``bias_m`` default:
     :data:`BIAS_SCALES` × the median of the Gaussians' largest axes."""
     f = model.frozen()
     means = f["means"]
-    cam = sun_camera(means, model.sun_direction(sun_zenith_deg, sun_azimuth_deg), size_px)
+    scale = float(f["max_scale"].median())
+    cam = sun_camera(means, model.sun_direction(sun_zenith_deg, sun_azimuth_deg), size_px, PIXEL_SCALES * scale)
     vm = cam.viewmat.to(means.dtype)
-    t = means @ vm[2, :3] + vm[2, 3]                               # [N] m along the sun ray
-    ref = t.median()
+    t = means @ vm[2, :3] + vm[2, 3]                               # [N] m along the sun's rays
+    rel = t - t.median()                                           # [N] (float32-safe)
+    edges = torch.linspace(float(rel.min()), float(rel.max()), slabs, dtype=means.dtype)  # [S]
 
-    def depth_feature(idx: Tensor, omega_o: Tensor) -> Tensor:     # [n, 1] relative depth (float32-safe)
-        return (t[idx] - ref)[:, None]
+    def in_front(idx: Tensor, omega_o: Tensor) -> Tensor:          # [n, S]: 1 where the Gaussian is before edge m
+        return (rel[idx, None] < edges[None, :]).to(means.dtype)
 
-    rv = render(model, cam, features=depth_feature, decode=False, backend=backend)
-    alpha = torch.as_tensor(rv.alpha, dtype=means.dtype)           # [S, S]
-    d = torch.where(alpha > 1e-6, rv.image[..., 0].to(means.dtype) / alpha.clamp_min(1e-6), torch.zeros_like(alpha))
+    occ = render(model, cam, features=in_front, decode=False, backend=backend).image.to(means.dtype)  # [H, W, S]
     K = cam.K.to(means.dtype)
     x, y = means @ vm[0, :3] + vm[0, 3], means @ vm[1, :3] + vm[1, 3]
-    u, v = K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2]    # [N] px
-    a_k, d_k = _bilinear(alpha, u, v), _bilinear(d, u, v)
-    bias = float(BIAS_SCALES * f["max_scale"].median()) if bias_m is None else float(bias_m)
-    behind = ((t - ref) > d_k + bias).to(means.dtype)
-    return (1.0 - a_k.clamp(0, 1) * behind).clamp(0, 1)
+    a_k = _bilinear_rows(occ, K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2])  # [N, S] 1 − T at the edges
+    bias = BIAS_SCALES * scale if bias_m is None else float(bias_m)
+    step = max(float(edges[-1] - edges[0]) / max(slabs - 1, 1), 1e-9)
+    pos = ((rel - bias - edges[0]) / step).clamp(0, slabs - 1)    # [N] fractional edge index
+    lo = pos.floor().long().clamp(max=slabs - 2) if slabs > 1 else pos.long() * 0
+    hi = (lo + 1).clamp(max=slabs - 1)
+    frac = pos - lo
+    occluded = a_k.gather(1, lo[:, None])[:, 0] * (1 - frac) + a_k.gather(1, hi[:, None])[:, 0] * frac
+    return (1.0 - occluded).clamp(0, 1)
 
 
 @torch.no_grad()
