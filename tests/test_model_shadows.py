@@ -51,8 +51,8 @@ def _in_shadow(ground: np.ndarray, sun_z: float, sun_a: float, margin_m: float) 
 def test_the_roof_shadow_falls_where_the_closed_form_puts_it(sun):
     tm, n_ground, ground = _roof_model()
     v = gaussian_sun_visibility(tm, *sun, backend="torch").numpy()
-    shade, lit = _in_shadow(ground, *sun, margin_m=1.0)
-    assert shade.sum() >= 20 and lit.sum() >= 500
+    shade, lit = _in_shadow(ground, *sun, margin_m=1.5)  # the splats reach 3σ = 0.9 m past the roof grid
+    assert shade.sum() >= 16 and lit.sum() >= 500
     assert (v[:n_ground][shade] < 0.05).all(), np.sort(v[:n_ground][shade])[-5:]
     assert (v[:n_ground][lit] > 0.95).all(), np.sort(v[:n_ground][lit])[:5]
     assert (v[n_ground:] > 0.95).all()                                  # the roof itself is lit

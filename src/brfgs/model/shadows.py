@@ -1,16 +1,24 @@
-"""Direct-sun visibility from the model's own geometry: shadow mapping with a sun camera.
+"""Direct-sun visibility from the model's own geometry: a deep opacity map seen from the sun.
 
 A camera far out along the sun direction ω_s (:data:`SUN_DISTANCE_M`: over a scene of a few hundred
-metres its rays are parallel to ~1e-2 rad) sees the Gaussians as the sun does. It renders, per
-pixel, the opacity α_s and the opacity-weighted mean depth D of what the sun meets first. A Gaussian
-whose centre lies more than ``bias_m`` behind D at its projection is in that surface's shadow:
+metres its rays are parallel to ~1e-2 rad) sees the Gaussians as the sun does. Rasterizing, for
+depth planes t_1 < … < t_S along its rays, the feature [t_k < t_m] of every Gaussian k gives at each
+pixel the blending weight in front of each plane, Σ_{k: t_k < t_m} w_k = 1 − T(t_m): one minus the
+transmittance of the sun's light down to that depth (front-to-back compositing). A Gaussian's
+visibility is that transmittance at ``bias_m`` in front of its centre, read at its projection
+(bilinear across pixels, linear between planes):
 
-    V_k = 1 − α_s(u_k, v_k) · [t_k > D(u_k, v_k) + bias]          (k: Gaussian, t: depth along ω_s)
+    V_k = T(u_k, v_k, t_k − bias)          (k: Gaussian; u, v: pixel in the sun camera; t: depth along ω_s)
 
-A view's visibility map is V rendered as a feature with the view's blending weights, divided by the
-view's opacity: the share of the surface seen in the pixel that the direct sun reaches (1 lit, 0 in
-shadow, NaN where the view sees nothing). The learned acquisition shadows are not in V: it is the
-geometry's answer for any sun.
+The sun camera's pixels are sized by the Gaussians (:data:`PIXEL_SCALES`) and the bias is
+:data:`BIAS_SCALES` of their median size divided by the cosine of the sun zenith (a slope-scaled
+bias, as shadow maps use, for the ground's slope toward the sun), so that the ground does not shadow
+itself however low the sun. (Each Gaussian's own normal for the slope measured worse on trained
+models: their normals are too noisy.) A view's
+visibility map is V rendered as a feature with the view's blending weights, divided by the view's
+opacity: the share of the surface seen in the pixel that the direct sun reaches (1 lit, 0 in shadow,
+NaN where the view sees nothing). The acquisition's shadows baked into the appearance are not in V:
+it is the geometry's answer for any sun.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ __all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_sun_visibilit
 SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
 SUN_MAP_PX = 1024          # the sun camera's largest image side (pixels)
 BIAS_SCALES = 2.0          # default bias: this many median Gaussian sizes (largest axis)
+MIN_COS = 0.25             # the slope-scaled bias grows as 1 / cos(sun zenith) down to this cosine
 PIXEL_SCALES = 0.75        # sun camera pixel: this many median Gaussian sizes (within SUN_MAP_PX a side)
 SLABS = 96                 # depth planes of the sun camera's opacity map
 
@@ -70,9 +79,9 @@ def _bilinear_rows(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W, C
 def gaussian_sun_visibility(model: TrainedModel, sun_zenith_deg: float, sun_azimuth_deg: float,
                             size_px: int = SUN_MAP_PX, bias_m: float | None = None, slabs: int = SLABS,
                             backend: str = "auto") -> Tensor:  # [N] in [0, 1]
-    """V_k of every Gaussian for the sun (deg): the transmittance T_k along the sun's ray up to
-    ``bias_m`` (m) in front of the Gaussian's centre (see the module docstring). ``bias_m`` default:
-    :data:`BIAS_SCALES` × the median of the Gaussians' largest axes."""
+    """V_k of every Gaussian for the sun (deg): the transmittance T_k along the sun's ray up to a bias
+    in front of the Gaussian's centre (see the module docstring): ``bias_m`` (m; default
+    :data:`BIAS_SCALES` × the median of the Gaussians' largest axes) / cos(sun zenith)."""
     f = model.frozen()
     means = f["means"]
     scale = float(f["max_scale"].median())
@@ -89,7 +98,9 @@ def gaussian_sun_visibility(model: TrainedModel, sun_zenith_deg: float, sun_azim
     K = cam.K.to(means.dtype)
     x, y = means @ vm[0, :3] + vm[0, 3], means @ vm[1, :3] + vm[1, 3]
     a_k = _bilinear_rows(occ, K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2])  # [N, S] 1 − T at the edges
-    bias = BIAS_SCALES * scale if bias_m is None else float(bias_m)
+    omega = model.sun_direction(sun_zenith_deg, sun_azimuth_deg).to(means.dtype)
+    slant = float(omega[2].clamp_min(MIN_COS))                    # cos of the sun zenith: ground's slope
+    bias = (BIAS_SCALES * scale if bias_m is None else float(bias_m)) / slant          # m, slope-scaled
     step = max(float(edges[-1] - edges[0]) / max(slabs - 1, 1), 1e-9)
     pos = ((rel - bias - edges[0]) / step).clamp(0, slabs - 1)    # [N] fractional edge index
     lo = pos.floor().long().clamp(max=slabs - 2) if slabs > 1 else pos.long() * 0
