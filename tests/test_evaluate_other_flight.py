@@ -60,6 +60,7 @@ def test_another_flight_is_rendered_under_its_own_sun_and_cameras(flights, capsy
     sh, sh2 = m["against"]["truth"]["shadows"], m2["against"]["truth"]["shadows"]
     for x in (sh, sh2):
         assert 0 <= x["accuracy"] <= 1 and x["n_pixels"] > 0 and 0 < x["shadow_share_truth"] < 0.5
+        assert 0 < x["cast"]["n_pixels"] < x["n_pixels"]              # crowns' pixels left out
     assert sh["shadow_share_truth"] == sh2["shadow_share_truth"] and sh["n_pixels"] != 0
     assert [v["name"] for v in m2["against"]["truth"]["views"]] == [v["name"] for v in m["against"]["truth"]["views"]]
 
@@ -76,6 +77,13 @@ def test_true_visibility_is_block_averaged_on_downscaled_scenes(flights, tmp_pat
     blk = np.where(raw == 255, np.nan, raw.astype(float)).reshape(16, 2, 16, 2).mean(axis=(1, 3))
     np.testing.assert_array_equal(v2, blk)
     assert truth_visibility(full, 0, (8, 8)) is None                   # not the images' grid
+    from brfgs.evaluation.shadows import canopy_pixels
+
+    mats = np.load(a / "truth" / "materials" / f"{full.frames[0].name}.npy")
+    table = json.loads((a / "truth" / "materials.json").read_text())["materials"]
+    leaf = np.isin(mats, [int(k) for k, v in table.items() if v["bsdf"] == "leaf"])
+    assert leaf.any() and np.array_equal(canopy_pixels(full, 0, (32, 32)), leaf)
+    assert np.array_equal(canopy_pixels(half, 0, (16, 16)), leaf.reshape(16, 2, 16, 2).any(axis=(1, 3)))
 
 
 def test_the_model_sun_on_its_own_flight_keeps_the_run_metrics(flights):

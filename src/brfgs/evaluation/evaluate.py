@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from brfgs.evaluation import by_material
-from brfgs.evaluation.shadows import ShadowScores, truth_visibility
+from brfgs.evaluation.shadows import ShadowScores, canopy_pixels, truth_visibility
 from brfgs.evaluation import metrics as M
 from brfgs.analysis.output import SPLITS, metrics_file
 from brfgs.analysis.plots import save_cir_comparison
@@ -232,7 +232,7 @@ def evaluate_run(out_dir: str | Path, scene_path: str | Path | None = None, back
         scores, materials = _score_view(lm, scene, i, backend, images_out, other, sun)
         true_vis = truth_visibility(scene, i, (scene.height, scene.width))
         if true_vis is not None:
-            shadows.add(*_view(lm, scene, i, other, sun), true_vis)
+            shadows.add(*_view(lm, scene, i, other, sun), true_vis, canopy_pixels(scene, i, true_vis.shape))
         for against, m in scores.items():
             views[against].append(m)
         if materials is not None:
@@ -287,8 +287,10 @@ def summary_lines(result: dict) -> list[str]:
                 for r, v in rings.items() if v.get("psnr") is not None))
         sh = block.get("shadows")
         if sh and sh.get("iou") is not None:
-            lines.append(" " * 29 + f"cast shadows (model geometry vs truth): IoU {sh['iou']:.2f}, accuracy "
-                         f"{sh['accuracy']:.2f}, shadow share {sh['shadow_share_model']:.0%} vs {sh['shadow_share_truth']:.0%}")
+            cast = sh.get("cast") or {}
+            lines.append(" " * 29 + f"shadows (model geometry vs truth): IoU {sh['iou']:.2f}, accuracy "
+                         f"{sh['accuracy']:.2f}, shadow share {sh['shadow_share_model']:.0%} vs {sh['shadow_share_truth']:.0%}"
+                         + (f"; outside crowns IoU {cast['iou']:.2f}" if cast.get("iou") is not None else ""))
         mats = list((block.get("materials") or {}).get("mean", {}).items())[:4]
         if mats:
             lines.append(" " * 29 + "largest error: " + ", ".join(
