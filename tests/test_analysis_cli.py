@@ -69,7 +69,9 @@ def test_render_writes_cube_cir_depth_normals(run_dir, tmp_path):
     np.testing.assert_allclose(normal[ok][:, 2], 1.0, atol=1e-3)
     info = json.loads((out / "render.json").read_text())
     assert info["view_zenith_deg"] == 35.0 and info["timings_s"]["median"]["total_s"] > 0
-    for f in ("cir.png", "depth.png", "normal.png"):
+    vis = np.load(out / "sun_visibility.npy")               # nothing casts a shadow on the flat carpet
+    assert vis.shape == (16, 24) and (vis[ok] > 0.99).all()
+    for f in ("cir.png", "depth.png", "normal.png", "sun_visibility.png"):
         assert (out / f).stat().st_size > 0
     assert main(args) == 2                                # a finished result is not overwritten
     assert main(args + ["--overwrite"]) == 0

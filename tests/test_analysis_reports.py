@@ -72,7 +72,12 @@ def test_render_report_writes_the_rendered_view(run_dir, tmp_path):
     np.testing.assert_array_equal(np.load(rep.out / "depth.npy"), rv.depth)
     np.testing.assert_array_equal(np.load(rep.out / "alpha.npy"), rv.alpha)
     np.testing.assert_array_equal(np.load(rep.out / "normal.npy"), rv.normal)
-    assert set(info["files"]) == {"cube", "cir_png", "depth_png", "normal_png"}
+    assert set(info["files"]) == {"cube", "cir_png", "depth_png", "normal_png", "sun_visibility_png"}
+    from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+
+    vis = sun_visibility_map(tm, _camera(info), gaussian_sun_visibility(tm, 50.0, tm.sun_azimuth_deg, backend="cpu"),
+                             backend="cpu")
+    np.testing.assert_array_equal(np.load(rep.out / "sun_visibility.npy"), vis)   # under the render's sun
     assert "24x16" in rep.message
     with pytest.raises(UserError, match="render.json"):  # a finished result is kept
         render_report(run_dir, opts, tmp_path / "r")

@@ -91,6 +91,18 @@ def _write_view(out: Path, tm: TrainedModel, rv: RenderedView, description: str)
     return files
 
 
+def _write_sun_visibility(out: Path, vw: _Viewer, c2w: np.ndarray, intr) -> dict:
+    """sun_visibility.npy and .png (grey; black where nothing is rendered) of the view under the render's
+    sun (:mod:`brfgs.model.shadows`)."""
+    from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+
+    vis = sun_visibility_map(vw.tm, camera_from_intrinsics(c2w, intr),
+                             gaussian_sun_visibility(vw.tm, *vw.sun, backend=vw.backend), backend=vw.backend)
+    atomic.save_npy(out / "sun_visibility.npy", vis)
+    grey = np.repeat(np.nan_to_num(vis, nan=0.0)[..., None], 3, axis=-1)
+    return {"sun_visibility_png": str(plots.save_rgb_png(out / "sun_visibility.png", grey))}
+
+
 def _single_view(out: Path, vw: _Viewer, vz: float, va: float, repeat: int, info: dict) -> str:
     """Render one view ``repeat`` times, write its files and render.json; the summary line."""
     times = []
@@ -99,6 +111,7 @@ def _single_view(out: Path, vw: _Viewer, vz: float, va: float, repeat: int, info
         times.append(rv.timings_s)
     sz, sa = vw.sun
     files = _write_view(out, vw.tm, rv, f"brfgs render view {vz:g}/{va:g} sun {sz:g}/{sa:g}")
+    files.update(_write_sun_visibility(out, vw, c2w, intr))
     warm = times[1:] if len(times) > 1 else times   # the first call also loads numba's compiled kernels
     med = {k: float(np.median([t[k] for t in warm])) for k in times[0]}
     info.update({"view_zenith_deg": vz, "view_azimuth_deg": va, "c2w": c2w.tolist(),
@@ -107,7 +120,9 @@ def _single_view(out: Path, vw: _Viewer, vz: float, va: float, repeat: int, info
                                "median_over": "calls after the first" if len(times) > 1 else "the only call"},
                  "files": files,
                  "depth": "metres along the optical axis (0 where nothing is rendered)",
-                 "normal": "unit world (ENU) normals facing the camera, 0 where nothing is rendered"})
+                 "normal": "unit world (ENU) normals facing the camera, 0 where nothing is rendered",
+                 "sun_visibility": "share of the surface in each pixel that the direct sun reaches under the render's "
+                                   "sun, from the model's geometry (1 lit, 0 in shadow, NaN where opacity < 0.1)"})
     atomic.write_json(out / "render.json", info)
     w, h = vw.size
     return (f"rendered {w}x{h}, {len(vw.tm.wavelengths_nm)} bands in {med['total_s'] * 1000:.0f} ms "

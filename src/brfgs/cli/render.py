@@ -18,7 +18,7 @@ from brfgs.cli._options import RunArg
 def register(app: typer.Typer) -> None:
     @config_command(app, "render", RenderOptions)
     def render_cmd(run: Path = RunArg, options: dict | None = None) -> None:
-        """Render the model from any view: ENVI cube, CIR PNG, depth and normal maps (PNG + .npy), timing."""
+        """Render the model from any view: ENVI cube, CIR PNG, depth, normal and sun-visibility (shadow) maps (PNG + .npy), timing."""
         from brfgs.analysis.render_report import render_report
 
         opts = apply_options(RenderOptions(view_zenith_deg=0.0, view_azimuth_deg=0.0), options)
