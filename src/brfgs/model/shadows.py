@@ -35,7 +35,7 @@ from brfgs.model.view import render
 __all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_sun_visibility", "sun_visibility_map"]
 
 SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
-SUN_MAP_PX = 1024          # the sun camera's largest image side (pixels)
+SUN_MAP_PX = 768           # the sun camera's largest image side (pixels; 96 planes: ~230 MB)
 BIAS_SCALES = 2.0          # default bias: this many median Gaussian sizes (largest axis)
 MIN_COS = 0.25             # the slope-scaled bias grows as 1 / cos(sun zenith) down to this cosine
 PIXEL_SCALES = 0.75        # sun camera pixel: this many median Gaussian sizes (within SUN_MAP_PX a side)
