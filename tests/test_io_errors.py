@@ -101,7 +101,7 @@ def _disk_full_while_writing(monkeypatch, module, name: str):
 def test_a_writer_without_a_file_name_is_named_by_the_path(run, tmp_path, monkeypatch, capsys):
     import numpy as np
 
-    _disk_full_while_writing(monkeypatch, np, "save")
+    _disk_full_while_writing(monkeypatch, np.lib.format, "write_array")
     out = tmp_path / "r"
     assert main(["render", str(run), "--view-zenith", "10", "--view-azimuth", "0", "-o", str(out), "-q"]) == 3
     err = capsys.readouterr().err.strip()

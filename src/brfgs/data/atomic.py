@@ -71,10 +71,19 @@ def open_text(path: str | Path, newline: str | None = None) -> Iterator:
         yield fh
 
 
+class _PythonWrites:
+    """A file seen by numpy through ``write`` only: numpy then writes with Python's file writes, whose
+    errors carry their errno (to a real file it writes with C ``fwrite``, and a full disk surfaces as
+    ``OSError: [Errno None]``)."""
+
+    def __init__(self, fh):
+        self.write = fh.write
+
+
 def save_npy(path: str | Path, array) -> Path:
     """``numpy.save`` to ``path`` (ending in .npy) atomically."""
-    with atomic_path(path) as tmp:
-        np.save(tmp, array)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.lib.format.write_array(_PythonWrites(fh), np.asanyarray(array), allow_pickle=False)
     return Path(path)
 
 

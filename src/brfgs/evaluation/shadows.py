@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from brfgs.evaluation.by_material import truth_maps
 from brfgs.model import TrainedModel
 from brfgs.model.camera import Camera
 from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
@@ -58,8 +59,6 @@ def canopy_pixels(scene, i: int, shape: tuple[int, int]) -> np.ndarray | None:  
     of their sub-pixels before downscaling, or None without material maps. Inside a crown the truth's
     visibility is a sub-pixel speckle of leaves shading leaves, which no splat model resolves at the
     images' resolution: scores without these pixels are those of the cast shadows."""
-    from brfgs.evaluation.by_material import truth_maps
-
     maps = truth_maps(scene, i, shape)
     if maps is None:
         return None
