@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike
 
 from brfgs.errors import UserError
 
-__all__ = ["Origin", "read_georef", "default_crs", "MapFrame", "origin_distance_m"]
+__all__ = ["Origin", "read_georef", "default_crs", "MapFrame", "origin_distance_m", "check_same_origin"]
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,17 @@ def origin_distance_m(a: dict, b: dict) -> float:
     east = 6378137.0 * math.cos(lat) * math.radians(float(b["longitude_deg"]) - float(a["longitude_deg"]))
     up = float(b.get("altitude_m", 0.0) or 0.0) - float(a.get("altitude_m", 0.0) or 0.0)
     return math.sqrt(north * north + east * east + up * up)
+
+
+def check_same_origin(reference: dict | None, other: dict | None, tf: Path | None, tolerance_m: float = 0.01) -> None:
+    """Co-registered scenes: both without an origin, or both at the same origin (within ``tolerance_m``);
+    UserError naming ``tf``'s ``origin`` otherwise."""
+    if (reference is None) != (other is None):
+        raise UserError("only one of the scenes is georeferenced: co-registered flights share one ENU origin",
+                        file=tf, field="origin")
+    if reference is not None and origin_distance_m(reference, other) > tolerance_m:
+        raise UserError(f"the origin is {origin_distance_m(reference, other):.2f} m from the reference scene's: "
+                        "co-registered flights share one ENU origin", file=tf, field="origin")
 
 
 def _number(v, tf: Path | None, field: str, lo: float, hi: float) -> float:

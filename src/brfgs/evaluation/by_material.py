@@ -70,6 +70,14 @@ def _load_map(path: Path) -> np.ndarray:
     return arr
 
 
+def image_grid_crop(scene, full_shape: tuple[int, ...]) -> tuple[slice, slice]:
+    """The rows and columns of a full-resolution truth map [H, W] that the scene's images cover: its ROI,
+    cut to whole blocks of its downscale factor."""
+    f = scene.downscale
+    x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, full_shape[1], full_shape[0])
+    return slice(y0, y0 + h // f * f), slice(x0, x0 + w // f * f)
+
+
 def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None] | None:
     """(material ids [H', W'], true depth [H', W'] m or None) of frame ``i`` on the pixel grid of the
     images before downscaling (the scene's ROI cropped: H' = downscale · H for images of ``shape``
@@ -85,8 +93,7 @@ def truth_maps(scene, i: int, shape: tuple[int, int]) -> tuple[np.ndarray, np.nd
     dp = td / "depth" / f"{scene.frames[i].name}.npy"
     dep = _load_map(dp) if dp.is_file() else None
     f = scene.downscale
-    x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, mat.shape[1], mat.shape[0])
-    crop = (slice(y0, y0 + h // f * f), slice(x0, x0 + w // f * f))
+    crop = image_grid_crop(scene, mat.shape)
     mat, dep = mat[crop], None if dep is None else dep[crop]
     if mat.shape != (shape[0] * f, shape[1] * f):
         return None

@@ -32,7 +32,7 @@ from brfgs.analysis.plots import save_cir_comparison
 from brfgs.data import atomic, read_scene
 from brfgs.data.cir import cir_composite
 from brfgs.data.cube_io import write_envi
-from brfgs.data.georef import origin_distance_m
+from brfgs.data.georef import check_same_origin
 from brfgs.data.splits import split_rule_of
 from brfgs.errors import UserError
 from brfgs.model import MODEL_FILE, TrainedModel, camera_from_intrinsics, render
@@ -57,8 +57,8 @@ def _scene_for(lm: TrainedModel, scene_path: str | Path | None, split: str = "te
     where = root / "transforms.json"
     if len(scene.wavelengths_nm) != len(lm.wavelengths_nm) or not np.allclose(scene.wavelengths_nm, lm.wavelengths_nm):
         raise UserError("the scene's wavelengths differ from the model's", file=where, field="wavelengths_nm")
-    if another_scene(lm, scene):
-        _check_same_site(lm, scene, where)
+    if another_scene(lm, scene):  # another flight must share the model's world frame
+        check_same_origin(lm.scene.get("origin"), scene.origin.to_json() if scene.origin else None, where)
     if not scene.indices_of(split):
         raise UserError(f"the scene has no {split} views", file=where, field="frames")
     return scene
@@ -69,28 +69,8 @@ def another_scene(lm: TrainedModel, scene) -> bool:
     names under other suns (two flights of one layout at another hour)."""
     if [f.name for f in scene.frames] != [f["name"] for f in lm.scene["frames"]]:
         return True
-    for i, f in enumerate(scene.frames):
-        sun = (f.sun_zenith_deg, f.sun_azimuth_deg) if np.isfinite(f.sun_zenith_deg) else (
-            scene.sun_zenith_deg, scene.sun_azimuth_deg)
-        if not np.allclose(sun, lm.frame_sun(i), rtol=0.0, atol=1e-6):
-            return True
-    return False
-
-
-def _check_same_site(lm: TrainedModel, scene, where: Path) -> None:
-    """Another flight must share the model's world frame: both georeferenced at the same origin (within
-    0.01 m), or neither georeferenced (then the poses must share one local frame: the user's word)."""
-    mine = lm.scene.get("origin")
-    theirs = scene.origin.to_json() if getattr(scene, "origin", None) else None
-    if (mine is None) != (theirs is None):
-        which = "the model's scene" if mine is not None else "this scene"
-        raise UserError(f"only {which} is georeferenced: another flight must share the model's frame "
-                        "(give both scenes the same origin)", file=where, field="origin")
-    if mine is not None:
-        d = origin_distance_m(mine, theirs)
-        if d > 0.01:
-            raise UserError(f"the scene's origin is {d:.2f} m from the model's: another flight must share the "
-                            "model's ENU origin (co-registered flights)", file=where, field="origin")
+    return any(not np.allclose((f.sun_zenith_deg, f.sun_azimuth_deg), lm.frame_sun(i), rtol=0.0, atol=1e-6)
+               for i, f in enumerate(scene.frames))
 
 
 def _view(lm: TrainedModel, scene, i: int, other: bool, sun: str):
@@ -100,11 +80,7 @@ def _view(lm: TrainedModel, scene, i: int, other: bool, sun: str):
     cam = camera_from_intrinsics(f.c2w, scene.intrinsics, f.name) if other else lm.cameras[i]
     if sun == "model":
         return cam, lm.sun_zenith_deg, lm.sun_azimuth_deg
-    if not other:
-        return (cam, *lm.frame_sun(i))
-    if np.isfinite(f.sun_zenith_deg):
-        return cam, float(f.sun_zenith_deg), float(f.sun_azimuth_deg)
-    return cam, float(scene.sun_zenith_deg), float(scene.sun_azimuth_deg)
+    return (cam, *lm.frame_sun(i)) if not other else (cam, float(f.sun_zenith_deg), float(f.sun_azimuth_deg))
 
 
 def _references(scene, i: int) -> dict:

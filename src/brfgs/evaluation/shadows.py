@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.evaluation.by_material import truth_maps
+from brfgs.evaluation.by_material import image_grid_crop, truth_maps
 from brfgs.model import TrainedModel
 from brfgs.model.camera import Camera
 from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
@@ -46,8 +46,7 @@ def truth_visibility(scene, i: int, shape: tuple[int, int]) -> np.ndarray | None
     if raw.ndim != 2:
         return None
     f = scene.downscale
-    x0, y0, w, h = scene.roi if scene.roi is not None else (0, 0, raw.shape[1], raw.shape[0])
-    raw = raw[y0:y0 + h // f * f, x0:x0 + w // f * f]
+    raw = raw[image_grid_crop(scene, raw.shape)]
     if raw.shape != (shape[0] * f, shape[1] * f):
         return None
     v = np.where(raw == 255, np.nan, np.clip(raw.astype(np.float64), 0, 1))

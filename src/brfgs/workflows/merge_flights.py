@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from brfgs.data import atomic, read_scene
-from brfgs.data.georef import origin_distance_m
+from brfgs.data.georef import check_same_origin
 from brfgs.data.validation import read_json_file
 from brfgs.errors import UserError
 
@@ -60,13 +60,7 @@ def _check_same(first: dict, meta: dict, tf: Path, wl0: np.ndarray, wl: np.ndarr
         if first.get(key) != meta.get(key):
             raise UserError(f"the flights' {key} differ ({first.get(key)!r} vs {meta.get(key)!r}): one scene has "
                             "one camera", file=tf, field=key)
-    o0, o = first.get("origin"), meta.get("origin")
-    if (o0 is None) != (o is None):
-        raise UserError("only some flights are georeferenced: co-registered flights share one origin", file=tf,
-                        field="origin")
-    if o0 is not None and origin_distance_m(o0, o) > 0.01:
-        raise UserError(f"the origin is {origin_distance_m(o0, o):.2f} m from the first flight's: co-registered "
-                        "flights share one ENU origin", file=tf, field="origin")
+    check_same_origin(first.get("origin"), meta.get("origin"), tf)
 
 
 def _flight_names(roots: list[Path]) -> list[str]:
@@ -97,7 +91,7 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     for name, root, meta, sc in zip(_flight_names(roots), roots, metas, scenes):
         merged["flights"].append({"name": name, "source": str(root.resolve()), "frames": len(sc.frames)})
         for fm, f in zip(meta["frames"], sc.frames):
-            frames.append(_merged_frame(fm, f, sc, root, out, name))
+            frames.append(_merged_frame(fm, f, root, out, name))
     merged["frames"] = frames
     darks = metas[0].get("dark_frames") or []
     for rel in darks:
@@ -110,17 +104,15 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     return merged
 
 
-def _merged_frame(fm: dict, f, sc, root: Path, out: Path, flight: str) -> dict:
-    """A frame of ``flight`` for the merged scene: its files linked under a new name, its sun and split
-    written out."""
+def _merged_frame(fm: dict, f, root: Path, out: Path, flight: str) -> dict:
+    """A frame of ``flight`` for the merged scene: its files linked under a new name, its sun (as the scene
+    reader resolved it: its own, its time's, or its flight's) and split written out."""
     src = root / fm["file_path"]
     new = f"{flight}_{f.name}"
     rel = Path(fm["file_path"]).parent / (new + src.suffix)
     if _link_stem(src.parent, src.stem, (out / rel).parent, new) == 0:
         raise UserError("the frame's image is missing", file=root / "transforms.json", field=fm["file_path"])
-    sun = (f.sun_zenith_deg, f.sun_azimuth_deg) if np.isfinite(f.sun_zenith_deg) else (
-        sc.sun_zenith_deg, sc.sun_azimuth_deg)
-    return {**fm, "file_path": rel.as_posix(), "sun_zenith_deg": float(sun[0]), "sun_azimuth_deg": float(sun[1]),
+    return {**fm, "file_path": rel.as_posix(), "sun_zenith_deg": f.sun_zenith_deg, "sun_azimuth_deg": f.sun_azimuth_deg,
             "split": "test" if f.split == "test" else "train"}
 
 
