@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from brfgs.analysis.brf import auto_roi_size, polar_map
+from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
 from brfgs.analysis.roi import PolygonROI
 from brfgs.analysis.threads import torch_threads
 from brfgs.analysis.views import intrinsics_json, view_camera
@@ -136,7 +137,8 @@ def bench_analysis(
     backend: str = "cpu",
     loop_threads: int = 1,
 ) -> dict:
-    """Time one arbitrary view (decoded, all bands) and one polar map (4 bands); returns a dict."""
+    """Time one arbitrary view (decoded, all bands), its shadow map (:mod:`brfgs.model.shadows`, the sun
+    visibility included) and one polar map (4 bands); returns a dict."""
     tm = TrainedModel.load(model) if model is not None else synthetic_model(n_gaussians)
     c2w, intr = bench_camera(tm, size)
     cam = camera_from_intrinsics(c2w, intr)
@@ -154,6 +156,8 @@ def bench_analysis(
             t, _ = _timed(lambda o=order: render(tm, cam, normals=True, backend=backend, decode_order=o), repeats)
             orders[order] = statistics.median(t)
         orders["gaussian_over_pixel"] = orders["gaussian"] / orders["pixel"]
+    shadow_s, _ = _timed(lambda: sun_visibility_map(tm, cam, gaussian_sun_visibility(tm, tm.sun_zenith_deg,
+                         tm.sun_azimuth_deg, backend=backend), backend=backend), repeats)  # `brfgs render`'s shadow map
     c = tm.scene_centre_m()
     h = roi_half_m
     roi = PolygonROI(np.array([[c[0] - h, c[1] - h], [c[0] + h, c[1] - h], [c[0] + h, c[1] + h], [c[0] - h, c[1] + h]]))
@@ -173,6 +177,8 @@ def bench_analysis(
         "render": {"size": [intr.w, intr.h], "median_s": statistics.median(all_), "all_s": all_, "cpu_s": cpu,
                    "median_cpu_s": statistics.median(cpu), "repeats": repeats, "split_s": rv.timings_s,
                    "decode_order": tm.render_settings.decode_order, "median_s_by_decode_order": orders},
+        "shadow_map": {"median_s": statistics.median(shadow_s), "all_s": shadow_s,
+                       "over_view": statistics.median(shadow_s) / statistics.median(all_)},
         "polar_map": {"directions": polar_azimuths * polar_zeniths, "bands": len(bi),
                       "roi_camera_px": roi_size_px or auto_roi_size(tm, 1.1 * roi.radius_m),
                       "median_s": statistics.median(pts), "all_s": pts, "cpu_s": pcs,

@@ -111,6 +111,9 @@ def bench_analysis_cmd(options: dict | None = None) -> None:
     if o:
         typer.echo(f"decode order (model: {r['decode_order']}): pixel {o['pixel'] * 1000:.0f} ms, gaussian "
                    f"{o['gaussian'] * 1000:.0f} ms wall (x{o['gaussian_over_pixel']:.2f}, same run)")
+    sm = res["shadow_map"]
+    typer.echo(f"shadow map of that view (sun visibility from the model's geometry): median "
+               f"{sm['median_s'] * 1000:.0f} ms wall (x{sm['over_view']:.2f} the view, same run)")
     typer.echo(f"polar map {p['directions']} directions x {p['bands']} bands: {p['median_s']:.1f} s wall, "
                f"{p['median_cpu_s']:.1f} s CPU ({p['per_direction_ms']:.1f} ms wall per direction)")
     if opts.json is not None:
