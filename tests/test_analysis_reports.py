@@ -73,7 +73,8 @@ def test_render_report_writes_the_rendered_view(run_dir, tmp_path):
     np.testing.assert_array_equal(np.load(rep.out / "alpha.npy"), rv.alpha)
     np.testing.assert_array_equal(np.load(rep.out / "normal.npy"), rv.normal)
     assert set(info["files"]) == {"cube", "cir_png", "depth_png", "normal_png", "sun_visibility_png"}
-    from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+    from brfgs.model.shadows import gaussian_sun_visibility
+    from brfgs.model.view import sun_visibility_map
 
     vis = sun_visibility_map(tm, _camera(info), gaussian_sun_visibility(tm, 50.0, tm.sun_azimuth_deg, backend="cpu"),
                              backend="cpu")

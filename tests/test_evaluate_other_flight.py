@@ -110,3 +110,26 @@ def test_flights_outside_the_model_frame_are_refused(flights, tmp_path, capsys):
     assert len(err) == 1 and "wavelengths" in err[0], err
     assert main(["evaluate", str(run), "--sun", "noon", "--quiet"]) == 2
     assert "--sun" in capsys.readouterr().err
+
+
+def test_a_model_with_shadows_trains_from_a_stage1_and_relights_another_flight(flights, tmp_path):
+    """--shadows: stage 2 from the run's stage-1 geometry with the flight's own diffuse fraction; the
+    model renders each frame of B with the light of B's sun (its cube the decoded latent times
+    (1 − f_b) V + f_b, V varying over the view)."""
+    a, b, run = flights
+    lit = tmp_path / "lit"
+    assert main(["train", str(a), str(lit), *TINY, "--backend", "torch", "--shadows",
+                 "--from-stage1", str(run / "checkpoints" / "stage1.safetensors")]) == 0
+    lm = TrainedModel.load(lit / "model.safetensors")
+    field = json.loads((a / "transforms.json").read_text())["diffuse_fraction"]
+    assert lm.shadowed and np.allclose(lm.diffuse_fraction.numpy(), field, atol=1e-6)
+    assert main(["evaluate", str(lit), "--scene", str(b), "--quiet", "--no-images", "--backend", "torch"]) == 0
+    m = json.loads((lit / "evaluate" / "sun55-sun-scene" / "metrics.json").read_text())
+    assert m["against"]["truth"]["mean"]["psnr"] > 0
+    sc = read_scene(b)
+    f = sc.frames[sc.indices_of("test")[0]]
+    rv = render(lm, camera_from_intrinsics(f.c2w, sc.intrinsics, f.name), sun_zenith_deg=55.0, sun_azimuth_deg=220.0,
+                backend="torch")
+    light = (1 - lm.diffuse_fraction.numpy()) * rv.sun_lit[..., None] + lm.diffuse_fraction.numpy()
+    np.testing.assert_allclose(rv.cube, lm.decode(rv.latent) * light, rtol=1e-4, atol=1e-5)
+    assert rv.sun_lit.max() - rv.sun_lit.min() > 0.05 and rv.sun_lit.max() <= 1.0 + 1e-6  # the geometry shades

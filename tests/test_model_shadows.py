@@ -13,7 +13,8 @@ from brfgs.analysis.bench import synthetic_model
 from brfgs.data.angles import direction_from_angles_deg
 from brfgs.data.cameras import Intrinsics, look_at_c2w, project_points
 from brfgs.model import camera_from_intrinsics
-from brfgs.model.shadows import gaussian_sun_visibility, sun_camera, sun_visibility_map
+from brfgs.model.shadows import gaussian_sun_visibility, sun_camera
+from brfgs.model.view import sun_visibility_map
 
 ROOF_Z_M, ROOF_HALF_M = 5.0, 4.0
 

@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from brfgs.analysis.brf import auto_roi_size, polar_map
-from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+from brfgs.model.shadows import gaussian_sun_visibility
+from brfgs.model.view import sun_visibility_map
 from brfgs.analysis.roi import PolygonROI
 from brfgs.analysis.threads import torch_threads
 from brfgs.analysis.views import intrinsics_json, view_camera

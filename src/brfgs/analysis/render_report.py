@@ -24,7 +24,7 @@ from brfgs.data.cameras import Intrinsics
 from brfgs.data.cube_io import write_envi
 from brfgs.errors import UserError
 from brfgs.model import RenderedView, TrainedModel, camera_from_intrinsics, render
-from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+from brfgs.model.view import sun_visibility_map
 from brfgs.data import atomic
 
 __all__ = ["RenderOptions", "render_report", "PATHS"]
@@ -96,7 +96,7 @@ def _write_sun_visibility(out: Path, vw: _Viewer, c2w: np.ndarray, intr) -> dict
     """sun_visibility.npy and .png (grey; black where nothing is rendered) of the view under the render's
     sun (:mod:`brfgs.model.shadows`)."""
     vis = sun_visibility_map(vw.tm, camera_from_intrinsics(c2w, intr),
-                             gaussian_sun_visibility(vw.tm, *vw.sun, backend=vw.backend), backend=vw.backend)
+                             vw.tm.sun_visibility(*vw.sun, backend=vw.backend), backend=vw.backend)
     atomic.save_npy(out / "sun_visibility.npy", vis)
     grey = np.repeat(np.nan_to_num(vis, nan=0.0)[..., None], 3, axis=-1)
     return {"sun_visibility_png": str(plots.save_rgb_png(out / "sun_visibility.png", grey))}

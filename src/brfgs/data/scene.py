@@ -26,6 +26,7 @@ from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles,
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
+from brfgs.data.sky import read_diffuse_fraction
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
 from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
@@ -82,6 +83,8 @@ class Scene:
     bright_counts: dict[str, int] = field(default_factory=dict)    # pixels above value_range per frame (kept)
     origin: Origin | None = None            # the ENU frame on the Earth (brfgs.data.georef), if given
     crs: str | None = None                  # map CRS of products (default: the origin's UTM zone)
+    diffuse_fraction: np.ndarray | None = None   # [B] sky share of the downwelling irradiance (brfgs.data.sky)
+    diffuse_fraction_source: str = "clear-sky default"
 
     # ----- geometry -------------------------------------------------------------------------------
     @property
@@ -287,6 +290,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                         field="frames[].split")
 
     sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, (value_range, allow_outside_links))
+    diffuse_all, diffuse_source = read_diffuse_fraction(meta, tf, wl_all)
     scene = Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
                   fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
                   intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
@@ -294,6 +298,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                   value_range=(float(lo), float(hi)), split_seed=split_seed, split_rule=split_rule,
                   validation=validation,
                   full_intrinsics=full_intr, origin=origin, crs=crs,
+                  diffuse_fraction=diffuse_all[band_idx], diffuse_fraction_source=diffuse_source,
                   _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
     return scene
 

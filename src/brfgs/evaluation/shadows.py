@@ -19,7 +19,7 @@ import numpy as np
 from brfgs.evaluation.by_material import image_grid_crop, truth_maps
 from brfgs.model import TrainedModel
 from brfgs.model.camera import Camera
-from brfgs.model.shadows import gaussian_sun_visibility, sun_visibility_map
+from brfgs.model.view import sun_visibility_map
 
 __all__ = ["DEFINITION", "truth_visibility", "canopy_pixels", "ShadowScores"]
 
@@ -72,11 +72,10 @@ def canopy_pixels(scene, i: int, shape: tuple[int, int]) -> np.ndarray | None:  
 
 class ShadowScores:
     """Pooled pixel counts of the model's shadows against the truth, over views rendered under any suns
-    (each sun's Gaussian visibilities computed once)."""
+    (each sun's Gaussian visibilities computed once: :meth:`TrainedModel.sun_visibility`)."""
 
     def __init__(self, model: TrainedModel, backend: str = "auto"):
         self.model, self.backend = model, backend
-        self._visibility: dict[tuple[float, float], object] = {}
         self.counts = np.zeros(4, np.int64)                  # both shadow, model only, truth only, both lit
         self.counts_cast = np.zeros(4, np.int64)             # the same without canopy pixels
 
@@ -84,10 +83,8 @@ class ShadowScores:
             canopy: np.ndarray | None = None) -> None:
         """Score one view (``truth`` [H, W] from :func:`truth_visibility`, ``canopy`` [H, W] from
         :func:`canopy_pixels`)."""
-        key = (float(sun_zenith_deg), float(sun_azimuth_deg))
-        if key not in self._visibility:
-            self._visibility[key] = gaussian_sun_visibility(self.model, *key, backend=self.backend)
-        pred = sun_visibility_map(self.model, cam, self._visibility[key], backend=self.backend)  # [H, W]
+        vis = self.model.sun_visibility(sun_zenith_deg, sun_azimuth_deg, backend=self.backend)  # [N]
+        pred = sun_visibility_map(self.model, cam, vis, backend=self.backend)  # [H, W]
         ok = np.isfinite(pred) & np.isfinite(truth)
         self.counts += _counts(pred[ok] < 0.5, truth[ok] < 0.5)
         if canopy is not None:

@@ -5,7 +5,7 @@ folder of hyperspectral cubes whose file stems are the COLMAP image names' stems
 ``images/view_00.hdr``, ``.tif``, ``.tiff`` or ``.npy``) and a small JSON sidecar become a
 ``transforms.json`` (docs/data-format.md) in the project folder. The sidecar holds what COLMAP does not
 know: ``wavelengths_nm`` (else read by the scene reader's checks from the cubes), ``fwhm_nm``,
-``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``,
+``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``, ``diffuse_fraction``,
 per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azimuth_deg": ...,
 "irradiance_scale": ..., "split": ...}}), and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
@@ -46,7 +46,7 @@ __all__ = ["CUBE_SUFFIXES", "read_colmap_model", "import_colmap", "write_colmap_
 
 CUBE_SUFFIXES = (".hdr", ".tif", ".tiff", ".npy")
 _SIDECAR_KEYS = ("wavelengths_nm", "fwhm_nm", "sun_zenith_deg", "sun_azimuth_deg", "origin", "crs", "dark_frames",
-                 "dark_sigma")
+                 "dark_sigma", "diffuse_fraction")
 
 
 def read_colmap_model(path: Path):

@@ -19,6 +19,11 @@ visibility map is V rendered as a feature with the view's blending weights, divi
 opacity: the share of the surface seen in the pixel that the direct sun reaches (1 lit, 0 in shadow,
 NaN where the view sees nothing). The acquisition's shadows baked into the appearance are not in V:
 it is the geometry's answer for any sun.
+
+A model trained with shadows (option ``shadows``) renders the reflectance of the lit surface times
+the illumination (1 − f_b) V + f_b (:func:`sun_sky_light`; f_b the scene's diffuse fraction,
+:mod:`brfgs.data.sky`), V blended per pixel: a shadow is then illumination, not albedo, and moves
+with the sun.
 """
 
 from __future__ import annotations
@@ -28,11 +33,12 @@ import torch
 from torch import Tensor
 
 from brfgs.data.cameras import Intrinsics, look_at_c2w
+from brfgs.data.sky import clear_sky_diffuse_fraction
 from brfgs.model.camera import Camera, camera_from_intrinsics
-from brfgs.model.trained import TrainedModel
-from brfgs.model.view import render
+from brfgs.model.rendering import rasterize_splats
 
-__all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_sun_visibility", "sun_visibility_map"]
+__all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_visibility", "gaussian_sun_visibility",
+           "scene_diffuse_fraction", "sun_sky_light"]
 
 SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
 SUN_MAP_PX = 768           # the sun camera's largest image side (pixels; 96 planes: ~230 MB)
@@ -75,49 +81,70 @@ def _bilinear_rows(img: Tensor, u: Tensor, v: Tensor) -> Tensor:  # img [H, W, C
             + img[y1, x0] * (1 - fx) * fy + img[y1, x1] * fx * fy)
 
 
-@torch.no_grad()
-def gaussian_sun_visibility(model: TrainedModel, sun_zenith_deg: float, sun_azimuth_deg: float,
+def gaussian_visibility(
+    means: Tensor,  # [N, 3] m
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3] m
+    opacities: Tensor,  # [N]
+    omega_sun: Tensor,  # [3] unit, toward the sun
+    size_px: int = SUN_MAP_PX,
+    bias_m: float | None = None,
+    slabs: int = SLABS,
+    backend: str = "auto",
+) -> Tensor:  # [N] in [0, 1]
+    """V_k of every Gaussian for the sun direction ``omega_sun``: the transmittance T_k along the sun's
+    ray up to a bias in front of the Gaussian's centre (see the module docstring): ``bias_m`` (m;
+    default :data:`BIAS_SCALES` × the median of the Gaussians' largest axes) / cos(sun zenith)."""
+    with torch.no_grad():
+        means, quats, scales, opacities = (t.detach().contiguous() for t in (means, quats, scales, opacities))
+        scale = float(scales.max(1).values.median())
+        cam = sun_camera(means, omega_sun, size_px, PIXEL_SCALES * scale)
+        vm = cam.viewmat.to(means.dtype)
+        t = means @ vm[2, :3] + vm[2, 3]                               # [N] m along the sun's rays
+        rel = t - t.median()                                           # [N] (float32-safe)
+        edges = torch.linspace(float(rel.min()), float(rel.max()), slabs, dtype=means.dtype)  # [S]
+        in_front = (rel[:, None] < edges[None, :]).to(means.dtype)     # [N, S] 1 before edge m
+        occ = rasterize_splats(means, quats, scales, opacities, in_front, cam, backend).image.to(means.dtype)
+        K = cam.K.to(means.dtype)
+        x, y = means @ vm[0, :3] + vm[0, 3], means @ vm[1, :3] + vm[1, 3]
+        a_k = _bilinear_rows(occ, K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2])  # [N, S] 1 − T at edges
+        slant = float(omega_sun[2].clamp_min(MIN_COS))                 # cos of the sun zenith: ground's slope
+        bias = (BIAS_SCALES * scale if bias_m is None else float(bias_m)) / slant      # m, slope-scaled
+        step = max(float(edges[-1] - edges[0]) / max(slabs - 1, 1), 1e-9)
+        pos = ((rel - bias - edges[0]) / step).clamp(0, slabs - 1)    # [N] fractional edge index
+        lo = pos.floor().long().clamp(max=slabs - 2) if slabs > 1 else pos.long() * 0
+        hi = (lo + 1).clamp(max=slabs - 1)
+        frac = pos - lo
+        occluded = a_k.gather(1, lo[:, None])[:, 0] * (1 - frac) + a_k.gather(1, hi[:, None])[:, 0] * frac
+        return (1.0 - occluded).clamp(0, 1)
+
+
+def gaussian_sun_visibility(model, sun_zenith_deg: float, sun_azimuth_deg: float,
                             size_px: int = SUN_MAP_PX, bias_m: float | None = None, slabs: int = SLABS,
                             backend: str = "auto") -> Tensor:  # [N] in [0, 1]
-    """V_k of every Gaussian for the sun (deg): the transmittance T_k along the sun's ray up to a bias
-    in front of the Gaussian's centre (see the module docstring): ``bias_m`` (m; default
-    :data:`BIAS_SCALES` × the median of the Gaussians' largest axes) / cos(sun zenith)."""
+    """:func:`gaussian_visibility` of the Gaussians of ``model`` (a :class:`brfgs.model.trained.TrainedModel`)
+    for the sun (deg)."""
     f = model.frozen()
-    means = f["means"]
-    scale = float(f["max_scale"].median())
-    cam = sun_camera(means, model.sun_direction(sun_zenith_deg, sun_azimuth_deg), size_px, PIXEL_SCALES * scale)
-    vm = cam.viewmat.to(means.dtype)
-    t = means @ vm[2, :3] + vm[2, 3]                               # [N] m along the sun's rays
-    rel = t - t.median()                                           # [N] (float32-safe)
-    edges = torch.linspace(float(rel.min()), float(rel.max()), slabs, dtype=means.dtype)  # [S]
-
-    def in_front(idx: Tensor, omega_o: Tensor) -> Tensor:          # [n, S]: 1 where the Gaussian is before edge m
-        return (rel[idx, None] < edges[None, :]).to(means.dtype)
-
-    occ = render(model, cam, features=in_front, decode=False, backend=backend).image.to(means.dtype)  # [H, W, S]
-    K = cam.K.to(means.dtype)
-    x, y = means @ vm[0, :3] + vm[0, 3], means @ vm[1, :3] + vm[1, 3]
-    a_k = _bilinear_rows(occ, K[0, 0] * x / t + K[0, 2], K[1, 1] * y / t + K[1, 2])  # [N, S] 1 − T at the edges
-    omega = model.sun_direction(sun_zenith_deg, sun_azimuth_deg).to(means.dtype)
-    slant = float(omega[2].clamp_min(MIN_COS))                    # cos of the sun zenith: ground's slope
-    bias = (BIAS_SCALES * scale if bias_m is None else float(bias_m)) / slant          # m, slope-scaled
-    step = max(float(edges[-1] - edges[0]) / max(slabs - 1, 1), 1e-9)
-    pos = ((rel - bias - edges[0]) / step).clamp(0, slabs - 1)    # [N] fractional edge index
-    lo = pos.floor().long().clamp(max=slabs - 2) if slabs > 1 else pos.long() * 0
-    hi = (lo + 1).clamp(max=slabs - 1)
-    frac = pos - lo
-    occluded = a_k.gather(1, lo[:, None])[:, 0] * (1 - frac) + a_k.gather(1, hi[:, None])[:, 0] * frac
-    return (1.0 - occluded).clamp(0, 1)
+    omega = model.sun_direction(sun_zenith_deg, sun_azimuth_deg).to(f["means"].dtype)
+    return gaussian_visibility(f["means"], f["quats"], f["scales"], f["opacities"], omega, size_px, bias_m, slabs,
+                               backend)
 
 
-@torch.no_grad()
-def sun_visibility_map(model: TrainedModel, cam: Camera, visibility: Tensor, backend: str = "auto",
-                       min_alpha: float = 0.1) -> np.ndarray:  # [H, W] float32
-    """The view's sun visibility: Gaussian visibilities ``visibility`` [N] blended by ``cam``'s weights
-    and divided by its opacity; NaN where the opacity is below ``min_alpha``."""
-    vis = visibility.to(model.frozen()["means"].dtype)
-    rv = render(model, cam, features=lambda idx, omega_o: vis[idx][:, None], decode=False, backend=backend)
-    a = rv.alpha.astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(a >= min_alpha, rv.image[..., 0].numpy().astype(np.float64) / a, np.nan)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+def scene_diffuse_fraction(scene: dict) -> Tensor:  # [B] float32
+    """f_b of a scene description (:func:`brfgs.model.camera.scene_description`): its
+    ``diffuse_fraction``, else the clear-sky default of :mod:`brfgs.data.sky`."""
+    f = scene.get("diffuse_fraction")
+    if f is None:
+        f = clear_sky_diffuse_fraction(np.asarray(scene["wavelengths_nm"], float))
+    return torch.as_tensor(np.asarray(f, np.float64), dtype=torch.float32)
+
+
+def sun_sky_light(
+    diffuse_fraction: Tensor,  # [B] f_b, sky share of the downwelling irradiance
+    visibility: Tensor,  # [...] direct-sun visibility V in [0, 1]
+) -> Tensor:  # [..., B]
+    """Illumination relative to the open sky, (1 − f_b) V + f_b: the sun's direct share where it
+    reaches (V = 1), the sky's alone in full shadow (V = 0). The rendered reflectance of a shadowed
+    model is the surface's reflectance times this (sky-view factor 1)."""
+    f = diffuse_fraction.to(visibility.dtype)
+    return (1.0 - f) * visibility[..., None] + f

@@ -31,6 +31,7 @@ from brfgs.model.camera import Camera, cameras_from_description, intrinsics_from
 from brfgs.model.features import HEAD_PARAM_KEYS, NeuralHead
 from brfgs.model.gaussians import GaussianModel
 from brfgs.model.rendering import decode_image
+from brfgs.model.shadows import gaussian_visibility, scene_diffuse_fraction
 from brfgs.model.schema import check_metadata, check_tensors
 from brfgs.spectral.decoders import (DESCRIPTION_KEYS, SpectralDecoder, decoder_from_state, decoder_metadata,
                                     decoder_state, is_linear)
@@ -88,6 +89,7 @@ class TrainedModel:
     source: str | None = None
     # (tensor identities and versions, detached tensors) of frozen(); not part of the model
     _frozen: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _visibility: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # sun -> V [N]
 
     # -- description ----------------------------------------------------------------
     @property
@@ -164,6 +166,36 @@ class TrainedModel:
         """How the model renders: as it was trained (:class:`RenderSettings`)."""
         return RenderSettings.from_training_options(self.config, self.spectral, is_linear(self.decoder))
 
+    @property
+    def shadowed(self) -> bool:
+        """Trained with shadows (option ``shadows``): spectra are rendered times the sun and sky
+        illumination (1 − f_b) V + f_b (:mod:`brfgs.model.shadows`)."""
+        return bool(self.config.get("shadows", False)) and self.spectral
+
+    @cached_property
+    def diffuse_fraction(self) -> Tensor:
+        """f_b [B]: the sky share of the downwelling irradiance the model was trained with (the scene's
+        field, else the clear-sky default of :mod:`brfgs.data.sky`)."""
+        return scene_diffuse_fraction(self.scene)
+
+    def sun_visibility(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None,
+                       backend: str = "auto") -> Tensor:
+        """V [N]: each Gaussian's direct-sun visibility for the sun (deg; default the acquisition's)."""
+        return self.sun_visibility_toward(self.sun_direction(sun_zenith_deg, sun_azimuth_deg), backend)
+
+    def sun_visibility_toward(self, omega_sun: Tensor, backend: str = "auto") -> Tensor:
+        """V [N] for the sun direction ``omega_sun`` [3] (unit, toward the sun), computed once per sun
+        and geometry (:func:`brfgs.model.shadows.gaussian_visibility`)."""
+        f = self.frozen()
+        omega = omega_sun.to(f["means"].dtype)
+        key = (tuple(round(float(v), 7) for v in omega), self._frozen_key(), backend)
+        if key not in self._visibility:
+            if len(self._visibility) >= 16:
+                self._visibility.clear()
+            self._visibility[key] = gaussian_visibility(f["means"], f["quats"], f["scales"], f["opacities"], omega,
+                                                        backend=backend)
+        return self._visibility[key]
+
     def frame_sun(self, i: int) -> tuple[float, float]:
         """(zenith, azimuth) deg of training frame ``i``'s own sun (brfgs.data.sun), else the scene's."""
         fr = self.frames[i] if 0 <= i < len(self.frames) else {}
@@ -217,7 +249,7 @@ class TrainedModel:
     def frozen(self) -> dict[str, Tensor]:
         """Detached tensors computed once: means, scales, max_scale, quats, opacities and the
         head parameters (recomputed when a tensor of ``gaussians.params`` is replaced or edited)."""
-        key = tuple((k, id(v), v._version) for k, v in sorted(self.gaussians.params.items()))
+        key = self._frozen_key()
         if self._frozen is None or self._frozen[0] != key:
             m = self.gaussians
             f = {k: v.detach() for k, v in m.params.items()}
@@ -226,6 +258,9 @@ class TrainedModel:
             f["opacities"] = m.opacities.detach()
             self._frozen = (key, f)
         return self._frozen[1]
+
+    def _frozen_key(self) -> tuple:
+        return tuple((k, id(v), v._version) for k, v in sorted(self.gaussians.params.items()))
 
     def head_params(self, idx: Tensor | None = None) -> dict[str, Tensor]:
         """Appearance tensors the head reads, rows ``idx`` (all if None)."""

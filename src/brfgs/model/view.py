@@ -30,6 +30,7 @@ from brfgs.data.cir import cir_composite
 from brfgs.model.camera import Camera
 from brfgs.model.rendering import (FeaturesFn, composite_background, decode_image, frustum_subset,
                                    rasterize_splats)
+from brfgs.model.shadows import sun_sky_light
 from brfgs.model.trained import TrainedModel
 from brfgs.spectral.decoders import is_linear
 from brfgs.render import RenderOutput
@@ -43,7 +44,10 @@ class RenderedView:
     [H, W, d] (None for custom features, the CIR variant or decode order "gaussian"); cube: reflectance [H, W, B] (None
     unless decoded); cir: CIR composite [H, W, 3] in [0, 1]-ish (None unless decoded, or always for
     the CIR variant); alpha [H, W]; depth [H, W] (m along the optical axis, 0 where nothing);
-    normal [H, W, 3] (unit, world, facing the camera, 0 where α = 0; None unless asked).
+    normal [H, W, 3] (unit, world, facing the camera, 0 where α = 0; None unless asked);
+    sun_lit [H, W]: a model trained with shadows, the blended direct-sun visibility of the latent's
+    pixels (background lit): the spectra decoded from ``latent`` times (1 − f_b) sun_lit + f_b
+    (:func:`brfgs.model.shadows.sun_sky_light`) are ``cube`` (None otherwise).
     """
 
     image: Tensor
@@ -53,6 +57,7 @@ class RenderedView:
     cube: np.ndarray | None = None
     cir: np.ndarray | None = None
     normal: np.ndarray | None = None
+    sun_lit: np.ndarray | None = None
     timings_s: dict = field(default_factory=dict)
 
 
@@ -83,29 +88,53 @@ def _unit_normals(normal: Tensor | None) -> np.ndarray | None:
     return np.where(nn > 1e-8, n / np.maximum(nn, 1e-12), 0.0).astype(np.float32)
 
 
-def spectral_features(model: TrainedModel, omega_i: Tensor, order: str | None = None) -> FeaturesFn:
+def spectral_features(model: TrainedModel, omega_i: Tensor, order: str | None = None,
+                      backend: str = "auto") -> FeaturesFn:
     """Per-Gaussian features whose rendering gives the model's spectra for the sun ω_i [3]:
-    latents [n, d] (decode order "pixel") or decoded spectra [n, B] ("gaussian", eq. 13)."""
+    latents [n, d] (decode order "pixel") or decoded spectra [n, B] ("gaussian", eq. 13). A model
+    trained with shadows adds each Gaussian's direct-sun visibility V as a last channel (order
+    "pixel") or multiplies its spectrum by the illumination (1 − f_b) V + f_b ("gaussian")."""
     order = order or model.render_settings.decode_order
+    vis = model.sun_visibility_toward(omega_i, backend) if model.shadowed else None  # [N]
 
     def features(idx: Tensor, omega_o: Tensor) -> Tensor:
         lat = model.gaussian_latent(omega_i, omega_o, idx)  # [n, d]
-        return decode_image(model.decoder, lat) if order == "gaussian" else lat
+        if order == "gaussian":
+            spec = decode_image(model.decoder, lat)  # [n, B]
+            return spec if vis is None else spec * sun_sky_light(model.diffuse_fraction, vis[idx].to(spec.dtype))
+        return lat if vis is None else torch.cat([lat, vis[idx, None].to(lat.dtype)], 1)
 
     return features
+
+
+def split_light(model: TrainedModel, image: Tensor, alpha: Tensor) -> tuple[Tensor, Tensor | None]:
+    """A rendered image of :func:`spectral_features` in order "pixel" [..., C] as (latents [..., d], the
+    pixel's direct-sun visibility [...] with the background lit, or None for a model without shadows)."""
+    if not model.shadowed:
+        return image, None
+    return image[..., :-1], image[..., -1] + (1.0 - alpha.to(image.dtype))
 
 
 @torch.no_grad()
 def pixel_spectra(model: TrainedModel, image: Tensor, alpha: Tensor, order: str | None = None) -> np.ndarray:
     """Reflectance [..., B] of rendered pixels ``image`` [..., C] (premultiplied features of
     :func:`spectral_features`) with coverage ``alpha`` [...]: the background composited, then
-    decoded per pixel (order "pixel"), or the decoded background spectrum composited ("gaussian")."""
+    decoded per pixel and lit (order "pixel"), or the decoded background spectrum composited ("gaussian")."""
     order = order or model.render_settings.decode_order
     bg = model.bg_latent
     if order == "gaussian":
         bg_spec = None if bg is None else decode_image(model.decoder, bg.to(image.dtype)[None])[0]  # [B]
         return composite_background(image, alpha, bg_spec).numpy().astype(np.float32)
-    return _decode_hits(model, composite_background(image, alpha, bg), alpha)
+    lat, vis = split_light(model, image, alpha)
+    return _lit(model, _decode_hits(model, composite_background(lat, alpha, bg), alpha), vis)
+
+
+def _lit(model: TrainedModel, cube: np.ndarray, vis: Tensor | None) -> np.ndarray:
+    """``cube`` [..., B] times the sun and sky illumination of the pixels' visibility ``vis`` [...] (None: as is)."""
+    if vis is None:
+        return cube
+    cube *= sun_sky_light(model.diffuse_fraction, vis.float()).numpy()
+    return cube
 
 
 def _decode_hits(model: TrainedModel, latent: Tensor, alpha: Tensor) -> np.ndarray:
@@ -157,8 +186,8 @@ def render(
         order = "pixel"  # affine decoding: blending latents gives the spectra of blending decoded Gaussians
     by_gaussian = not custom and decode and order == "gaussian"
     if not custom:
-        features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel") if model.spectral else (
-            lambda idx, omega_o: model.gaussian_latent(omega_i, omega_o, idx))
+        features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel", backend) \
+            if model.spectral else (lambda idx, omega_o: model.gaussian_latent(omega_i, omega_o, idx))
     out = _rasterize_subset(model, cam, features, normals, cull, backend)
     t1 = time.perf_counter()
     rv = RenderedView(image=out.image, alpha=out.alpha.numpy(), depth=out.depth.numpy(), normal=_unit_normals(out.normal))
@@ -166,12 +195,28 @@ def render(
         rv.cube = pixel_spectra(model, out.image, out.alpha, "gaussian")
         rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
     elif not custom and model.spectral:
-        latent = composite_background(out.image, out.alpha, model.bg_latent)  # [H, W, d]
+        rv.image, vis = split_light(model, out.image, out.alpha)
+        rv.sun_lit = None if vis is None else vis.numpy()
+        latent = composite_background(rv.image, out.alpha, model.bg_latent)  # [H, W, d]
         rv.latent = latent.numpy().astype(np.float32, copy=False)  # a view of the float32 planes: no copy
         if decode:
-            rv.cube = _decode_hits(model, latent, out.alpha)
+            rv.cube = _lit(model, _decode_hits(model, latent, out.alpha), vis)
             rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
     elif not custom:  # CIR variant: SH colours on the CIR composite
         rv.cir = composite_background(out.image, out.alpha, model.extra.get("bg_colors")).clamp(0, 1).numpy()
     rv.timings_s = {"rasterize_s": t1 - t0, "decode_s": time.perf_counter() - t1, "total_s": time.perf_counter() - t0}
     return rv
+
+
+@torch.no_grad()
+def sun_visibility_map(model: TrainedModel, cam: Camera, visibility: Tensor, backend: str = "auto",
+                       min_alpha: float = 0.1) -> np.ndarray:  # [H, W] float32
+    """The view's sun visibility: Gaussian visibilities ``visibility`` [N] (e.g.
+    :meth:`TrainedModel.sun_visibility`) blended by ``cam``'s weights and divided by its opacity;
+    NaN where the opacity is below ``min_alpha``."""
+    vis = visibility.to(model.frozen()["means"].dtype)
+    rv = render(model, cam, features=lambda idx, omega_o: vis[idx][:, None], decode=False, backend=backend)
+    a = rv.alpha.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(a >= min_alpha, rv.image[..., 0].numpy().astype(np.float64) / a, np.nan)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)

@@ -43,6 +43,7 @@ from brfgs.sim.geometry import build_geometry
 from brfgs.sim.materials import MATERIAL_IDS, MATERIAL_NAMES
 from brfgs.sim.distort import render_grid, to_distorted
 from brfgs.sim.render import BandTripletRenderer
+from brfgs.sim import spectra as sp
 
 # what simulate() writes (and what --overwrite may remove); other files in OUT are left alone
 OUTPUT_ENTRIES = ("transforms.json", "images", "calibration", "truth", "preview_cir_nadir.png",
@@ -384,6 +385,7 @@ def _transforms(cfg: SimConfig, frames: list[dict], dark_paths: list[str]) -> di
         "fwhm_nm": [float(w) for w in cfg.fwhm_array_nm()],
         **_reference_sun(cfg),
         "dark_frames": dark_paths,
+        "diffuse_fraction": [round(float(v), 6) for v in sp.sky_fraction(cfg.wavelengths_nm())],
         **({"origin": cfg.origin_json()} if cfg.origin is not None else {}),
         "simulator": {"scene": cfg.scene, "seed": int(cfg.seed), "truth": "truth/"},
         "frames": frames,

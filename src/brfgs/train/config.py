@@ -64,6 +64,9 @@ class TrainConfig:
                                        "iso,vol,geo,spec.", panel=METHOD)
     joint: bool = _opt(False, "Train geometry and reflectance at once on all bands instead of in two stages.",
                        "--joint/--decoupled", panel=METHOD)
+    shadows: bool = _x(False, "Stage 2 fits the lit surface: spectra rendered times the sun where the model's "
+                       "geometry lets it through plus the sky (scene's diffuse_fraction); shadows move with the sun.",
+                       "--shadows/--no-shadows")
     decode: str = _opt("pixel", "Spectral decoding: pixel (blend latents, decode pixels) or gaussian (paper eq. 13).",
                        panel=METHOD)
     band_strategy: str = _opt("efc-top3", "Geometry bands for SfM and stage 1 (see brfgs select-bands).", panel=METHOD)
@@ -204,6 +207,9 @@ class TrainConfig:
         lo, hi = self.value_range
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise UserError(f"value_range must be two finite numbers LO < HI, got {lo}, {hi}", field="value_range")
+        if self.shadows and (self.joint or self.variant == "cir"):
+            raise UserError("--shadows needs the two-stage spectral training (not --joint, not the cir variant): "
+                            "the sun's visibility is computed from the stage-1 geometry", field="shadows")
         bad = [c for c in self.components if c not in ("iso", "vol", "geo", "spec")]
         if bad or not self.components:
             raise UserError(f"components must be a non-empty subset of iso,vol,geo,spec, got {self.components}", field="components")

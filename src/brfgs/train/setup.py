@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from brfgs.bands import select_bands
 from brfgs.brdf.geometry import gaussian_normals
@@ -19,6 +20,8 @@ from brfgs.init.mvs import MVSConfig, dense_cloud, write_dense_ply
 from brfgs.init.truth import surface_samples
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
+from brfgs.model.rendering import rasterize_splats
+from brfgs.model.shadows import sun_sky_light
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
 from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.spectral.linear_basis import fit_linear_basis
@@ -28,7 +31,7 @@ from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
-from brfgs.train.targets import backprojected_targets, ground_footprints
+from brfgs.train.targets import backprojected_reflectance, backprojected_targets, ground_footprints
 
 
 def select_and_initialise(state: TrainState, scene, cfg: TrainConfig, folder: RunFolder, progress: bool, log):
@@ -167,6 +170,17 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
     log(f"{name} d={cfg.latent_dim}: test SAM {te['sam_mean_rad']:.4f} rad, RMSE {te['rmse']:.5f}")
 
 
+@torch.no_grad()
+def view_light(state: TrainState, i: int, backend: str = "auto") -> Tensor:  # [H, W, B]
+    """The sun and sky illumination (1 − f_b) V + f_b of training view ``i``'s pixels, V the
+    Gaussians' direct-sun visibility under its sun blended by the view (the background lit)."""
+    g, cam = state.gaussians, state.cameras[i]
+    out = rasterize_splats(g.means.detach(), g.quats.detach(), g.scales.detach(), g.opacities.detach(),
+                           state.sun_visibility(i)[:, None], cam, backend, state.cfg.antialias,
+                           supersample=state.cfg.supersample)
+    return sun_sky_light(state.diffuse_fraction, out.image[..., 0] + (1.0 - out.alpha))
+
+
 def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -> None:
     """Appearance tensors of the variant, the view-independent part from back-projected observations."""
     gm, n, cams = state.gaussians, state.gaussians.n, state.cameras
@@ -176,9 +190,15 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
         params = init_head_params(head_config(cfg), n, 3, z_init=base)
         state.extra["bg_colors"] = base.mean(0)
     else:
-        base = backprojected_targets(gm, images("full"), cams, scene.train_indices,
-                                     encode=lambda img: encode_spectra(state.decoder, img),
-                                     backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample)
+        if cfg.shadows:  # the lit surface's reflectance: each view's image over its sun and sky light
+            refl = backprojected_reflectance(gm, images("full"), cams, scene.train_indices,
+                                             lambda i: view_light(state, i, cfg.backend), backend=cfg.backend,
+                                             antialiased=cfg.antialias, supersample=cfg.supersample)
+            base = encode_spectra(state.decoder, refl)
+        else:
+            base = backprojected_targets(gm, images("full"), cams, scene.train_indices,
+                                         encode=lambda img: encode_spectra(state.decoder, img),
+                                         backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample)
         state.extra["bg_latent"] = base.mean(0).detach()
         if cfg.learn_irradiance:        # log of each frame's irradiance scale, learned in the spectral phases
             state.extra["log_irradiance"] = torch.zeros(len(state.cameras))

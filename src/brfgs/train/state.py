@@ -20,6 +20,7 @@ from brfgs.model import DensifyState, GaussianModel, NamedAdam, TrainedModel
 from brfgs.model import io
 from brfgs.model.camera import Camera, cameras_from_description
 from brfgs.model.features import NeuralHead, uncentre
+from brfgs.model.shadows import gaussian_visibility, scene_diffuse_fraction
 from brfgs.spectral.autoencoder import SpectralAutoencoder
 from brfgs.train.config import TrainConfig
 from brfgs.train.phases import Phase
@@ -58,6 +59,7 @@ class TrainState:
         self.timings: dict[str, float] = {}
         self._cameras: list[Camera] | None = None
         self.dense_depth: DenseDepth | None = None  # the dense depth maps (option lambda_dense_depth)
+        self._visibility: dict[tuple, Tensor] = {}  # option shadows: sun -> V [N] of the frozen geometry
 
     # -- derived -----------------------------------------------------------------------
     @property
@@ -80,6 +82,27 @@ class TrainState:
         if not self.cfg.frame_suns or fr.get("sun_zenith_deg") is None:
             return self.sun
         return sun_direction(fr["sun_zenith_deg"], fr["sun_azimuth_deg"])
+
+    def sun_visibility(self, i: int) -> Tensor:  # [N]
+        """Direct-sun visibility V [N] of every Gaussian under training frame ``i``'s sun (option
+        ``shadows``), from the geometry as it is: computed once per sun while the geometry is frozen
+        (stage 2; :meth:`geometry_changed` forgets them)."""
+        omega = self.sun_of(i)
+        key = tuple(round(float(v), 7) for v in omega)
+        if key not in self._visibility:
+            g = self.gaussians
+            self._visibility[key] = gaussian_visibility(g.means, g.quats, g.scales, g.opacities, omega,
+                                                        backend=self.cfg.backend)
+        return self._visibility[key]
+
+    def geometry_changed(self) -> None:
+        """Forget the sun visibilities of the geometry before (a new phase or a loaded checkpoint)."""
+        self._visibility = {}
+
+    @property
+    def diffuse_fraction(self) -> Tensor:  # [B]
+        """f_b: the scene's sky share of the irradiance per band (else the clear-sky default)."""
+        return scene_diffuse_fraction(self.meta["scene"])
 
     def stage1_bands(self) -> list[int]:
         """Band indices stage 1 fits (runs made before stage1_cir_bands existed: the selected bands)."""
@@ -138,6 +161,7 @@ class TrainState:
         self.neural = tm.neural
         self.timings = dict(meta.get("timings_s", {}))
         self._cameras = None
+        self.geometry_changed()
         return tensors, meta
 
     def load_training_state(self, tensors: dict[str, Tensor], meta: dict) -> None:

@@ -13,6 +13,7 @@ from torch import Tensor
 
 from brfgs.model.camera import Camera
 from brfgs.model.features import camera_depth_normals, gaussian_features, stage1_colors
+from brfgs.model.shadows import sun_sky_light
 from brfgs.model.rendering import (
     composite_background, decode_image, frustum_subset, rasterize_features, rasterize_splats,
 )
@@ -123,9 +124,10 @@ def _plus(loss: Tensor, reg: Tensor | None) -> Tensor:
 
 
 def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tensor, batch: Batch,
-                   greg: Tensor | None, gen: torch.Generator) -> tuple[Tensor, float]:
+                   greg: Tensor | None, gen: torch.Generator, light: Tensor | None = None) -> tuple[Tensor, float]:
     """Decode the latent image and score it on all bands (eqs. 25–27); stage 2 samples rays
-    (drawn from ``gen``)."""
+    (drawn from ``gen``). ``light`` [H, W, B] (option shadows): the illumination the decoded
+    spectra are multiplied by."""
     c = cfg
     h, w = lat.shape[:2]
     target, valid = batch.target, batch.valid
@@ -137,6 +139,9 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
             spectra_at = _decode_once(state.decoder, flat_lat, idx, w, h)
         else:
             spectra_at = lambda q: decode_image(state.decoder, flat_lat[q])  # noqa: E731
+        if light is not None:
+            flat_light, unlit = light.reshape(h * w, -1), spectra_at
+            spectra_at = lambda q: unlit(q) * flat_light[q]  # noqa: E731
         pred = spectra_at(idx) * _frame_gain(state, batch.index)  # [R, B]
         greg = _plus_irradiance_prior(state, cfg, batch.index, greg)
         tgt, val = target.reshape(h * w, -1)[idx], valid.reshape(-1)[idx]
@@ -144,7 +149,8 @@ def _spectral_loss(state: TrainState, cfg: TrainConfig, phase: Phase, lat: Tenso
             tv = _spectral_tv(spectra_at, target, valid, idx, pred)
             greg = _plus(c.lambda_spectral_tv * tv, greg)
         return _plus(stage2_loss(pred, tgt, val, c.beta_cos), greg), masked_psnr(pred, tgt, val)
-    return _score_spectra(state, cfg, phase, decode_image(state.decoder, lat), batch, greg)
+    spectra = decode_image(state.decoder, lat)
+    return _score_spectra(state, cfg, phase, spectra if light is None else spectra * light, batch, greg)
 
 
 def _neighbour_pairs(idx: Tensor, w: int, h: int) -> list[tuple[Tensor, Tensor]]:
@@ -277,9 +283,14 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     use_priors = phase.trains_geometry and surf and state.step >= int(c.normal_start * phase_steps)
     feats = _features(state, cfg, phase, batch.cam, batch.index)
     by_gaussian = c.decode == "gaussian" and phase.fits_head
+    vis = state.sun_visibility(batch.index) if c.shadows and phase == Phase.STAGE2 else None  # [N]
     subset = None
     if by_gaussian:
         feats, subset = _decoded_features(state, phase, feats, batch.cam)
+        if vis is not None:  # each Gaussian's spectrum under its own light
+            feats = feats * sun_sky_light(state.diffuse_fraction, vis if subset is None else vis[subset])
+    elif vis is not None:  # the visibility as a last channel, blended like the latents
+        feats = torch.cat([feats, vis[:, None].to(feats.dtype)], -1)
     n_feat = feats.shape[-1]
     if use_priors:  # depth + normal channels for the surface priors
         feats = torch.cat([feats, camera_depth_normals(state.gaussians, batch.cam)], -1)
@@ -297,6 +308,9 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
         bg = decode_image(state.decoder, state.extra["bg_latent"][None])[0]  # [B]
         loss, psnr = _score_spectra(state, cfg, phase, composite_background(image, out.alpha, bg), batch, greg)
     else:
+        light = None
+        if vis is not None:  # the pixel's blended visibility, the background lit
+            image, light = image[..., :-1], sun_sky_light(state.diffuse_fraction, image[..., -1] + (1.0 - out.alpha))
         lat = composite_background(image, out.alpha, state.extra["bg_latent"])
-        loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg, state.gen if gen is None else gen)
+        loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg, state.gen if gen is None else gen, light)
     return StepResult(loss, psnr, out)

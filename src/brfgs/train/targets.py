@@ -40,6 +40,31 @@ def projected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera
     return out
 
 
+def _blend_weighted_sums(model: GaussianModel, views, backend: str, antialiased: bool, supersample: int) -> Tensor:
+    """Σ_p w_kp t_p [N, C] over the views ``views`` (an iterable of (camera, t [H, W, C])), w_kp the
+    rendering weight of Gaussian k in pixel p: the gradient of Σ_p <image_p(f), t_p> in the features
+    f, one rasterization and backward per view."""
+    m = model
+    means, quats, scales, opac = m.means.detach(), m.quats.detach(), m.scales.detach(), m.opacities.detach()
+    acc = None
+    for cam, t in views:
+        f = torch.zeros(m.n, t.shape[-1], requires_grad=True)
+        with torch.enable_grad():
+            out = rasterize_splats(means, quats, scales, opac, f, cam, backend, antialiased, supersample=supersample)
+            (out.image * t).sum().backward()
+        acc = f.grad.clone() if acc is None else acc + f.grad
+    return acc
+
+
+def _with_fallback(res: Tensor, weight: Tensor, fallback) -> Tensor:
+    """``res`` [N, C] with the rows whose blending weight ``weight`` [N] is below 1e-3 taken from
+    ``fallback()`` [N, C] (Gaussians no view sees)."""
+    weak = weight < 1e-3
+    if weak.any():
+        res[weak] = fallback()[weak]
+    return res.detach()
+
+
 def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Camera], indices: list[int],
                           encode=None, backend: str = "auto", antialiased: bool = False,
                           supersample: int = 1) -> Tensor:
@@ -51,30 +76,44 @@ def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Ca
     through ``encode`` (e.g. the spectral encoder) first when given. Gaussians that no view sees
     fall back to the centre-projection mean (:func:`projected_targets`).
     """
-    m = model
-    means, quats, scales, opac = m.means.detach(), m.quats.detach(), m.scales.detach(), m.opacities.detach()
-    acc = None
-    for i in indices:
-        img, valid = store.get(i)
-        with torch.no_grad():
-            t = encode(img) if encode is not None else img
-        t = torch.cat([t * valid[..., None], valid[..., None].float()], -1)  # [H, W, C+1]
-        f = torch.zeros(m.n, t.shape[-1], requires_grad=True)
-        cam = cams[i]
-        with torch.enable_grad():
-            out = rasterize_splats(means, quats, scales, opac, f, cam, backend, antialiased, supersample=supersample)
-            (out.image * t).sum().backward()
-        acc = f.grad.clone() if acc is None else acc + f.grad
-    w = acc[:, -1:]
-    res = acc[:, :-1] / w.clamp_min(1e-8)
-    weak = w[:, 0] < 1e-3
-    if weak.any():
-        fallback = projected_targets(model, store, cams, indices)
+    def views():
+        for i in indices:
+            img, valid = store.get(i)
+            with torch.no_grad():
+                t = encode(img) if encode is not None else img
+            yield cams[i], torch.cat([t * valid[..., None], valid[..., None].float()], -1)  # [H, W, C+1]
+
+    acc = _blend_weighted_sums(model, views(), backend, antialiased, supersample)
+
+    def fallback():
+        out = projected_targets(model, store, cams, indices)
         if encode is not None:
             with torch.no_grad():
-                fallback = encode(fallback)
-        res[weak] = fallback[weak]
-    return res.detach()
+                out = encode(out)
+        return out
+
+    return _with_fallback(acc[:, :-1] / acc[:, -1:].clamp_min(1e-8), acc[:, -1], fallback)
+
+
+def backprojected_reflectance(model: GaussianModel, store: ImageStore, cams: list[Camera], indices: list[int],
+                              light_of, backend: str = "auto", antialiased: bool = False,
+                              supersample: int = 1) -> Tensor:  # [N, B]
+    """Per-Gaussian reflectance of the lit surface [N, B] from images taken under a known
+    illumination ``light_of(i) -> [H, W, B]`` (relative to the open sky): per band the
+    least-squares fit of t_p ≈ ρ_k L_p over the pixels each Gaussian blends into, weighted by the
+    blending weights, ρ_k = Σ_p w_kp L_p t_p / Σ_p w_kp L_p² (a shadowed pixel, L small, counts
+    little: its ρ estimate t / L carries the noise divided by L). Gaussians that no view sees fall
+    back to the centre-projection mean (:func:`projected_targets`)."""
+    def views():
+        for i in indices:
+            img, valid = store.get(i)
+            light = light_of(i) * valid[..., None]  # [H, W, B]
+            yield cams[i], torch.cat([torch.nan_to_num(img) * light, light * light], -1)  # [H, W, 2B]
+
+    acc = _blend_weighted_sums(model, views(), backend, antialiased, supersample)
+    b = acc.shape[1] // 2
+    return _with_fallback(acc[:, :b] / acc[:, b:].clamp_min(1e-8), acc[:, b:].mean(1),
+                          lambda: projected_targets(model, store, cams, indices))
 
 
 def ground_footprints(scene, pts: np.ndarray, c2w: np.ndarray):

@@ -283,6 +283,7 @@ class Trainer:
         self._begin_phase(Phase.STAGE2)
 
     def _begin_phase(self, phase: Phase) -> None:
+        self.state.geometry_changed()
         if phase == Phase.STAGE2:
             init_head(self.state, self.cfg, self.scene, self._train_images())
         self.state.phase = phase

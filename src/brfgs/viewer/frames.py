@@ -33,6 +33,7 @@ from brfgs.data.cir import cir_composite
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 from brfgs.model.rendering import composite_background
+from brfgs.model.shadows import sun_sky_light
 from brfgs.model.view import RenderedView
 from brfgs.spectral.band_decode import decode_bands
 from brfgs.viewer.formula import NDVI, IndexFormula, parse_formula
@@ -129,13 +130,17 @@ def mode_bands(tm: TrainedModel, mode: DisplayMode) -> list[int]:
 def _spectral_view(tm: TrainedModel, cam, sun: tuple[float, float], bands: list[int], backend: str
                    ) -> tuple[RenderedView, np.ndarray]:
     """(the render, reflectance planes [H, W, nb] in ``bands``): the latent rendered and only those
-    bands decoded (:func:`brfgs.spectral.band_decode.decode_bands`, equal to the full decode); a
+    bands decoded (:func:`brfgs.spectral.band_decode.decode_bands`, equal to the full decode; a model
+    with shadows lit as :func:`brfgs.model.view.render` lights its cube); a
     model decoding per Gaussian (order "gaussian") decodes its whole cube."""
     if tm.render_settings.decode_order == "gaussian":
         view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], backend=backend)
         return view, view.cube[..., bands]
     view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], decode=False, backend=backend)
-    return view, decode_bands(tm.decoder, torch.as_tensor(view.latent), bands).numpy()
+    planes = decode_bands(tm.decoder, torch.as_tensor(view.latent), bands)  # [H, W, nb]
+    if view.sun_lit is not None:  # a model with shadows: the bands under the sun and sky light
+        planes = planes * sun_sky_light(tm.diffuse_fraction[bands], torch.as_tensor(view.sun_lit))
+    return view, planes.numpy()
 
 
 def _planes_rgb(tm: TrainedModel, planes: np.ndarray, mode: DisplayMode, alpha: np.ndarray) -> np.ndarray:

@@ -44,6 +44,8 @@ __all__ = ["ViewerOptions", "Viewer", "warm_up"]
 
 SHADOW_NOTE = ("**Shadows are baked into the model.** The sun sliders re-evaluate the kernels (iso, vol, geo, "
                "spec) for the new sun; cast shadows stay where they were at acquisition.")
+SHADOW_NOTE_LIT = ("**Shadows move with the sun.** The model was trained with shadows: the sun sliders re-evaluate "
+                   "the kernels and each surface's direct-sun visibility from the model's geometry.")
 DISPLAY_CHOICES = ("cir", "truecolor", "band", "index", "depth", "normals", "alpha",
                    "kernel:iso", "kernel:vol", "kernel:geo", "kernel:spec")
 
@@ -133,7 +135,7 @@ class Viewer:
                                         float(np.clip(tm.sun_zenith_deg, *SUN_ZENITH_DEG)))
             self.sun_a = gui.add_slider("Sun azimuth (deg)", *SUN_AZIMUTH_DEG, 1.0, float(tm.sun_azimuth_deg) % 360.0)
             reset = gui.add_button("Reset to the acquisition's sun")
-            gui.add_markdown(SHADOW_NOTE)
+            gui.add_markdown(SHADOW_NOTE_LIT if tm.shadowed else SHADOW_NOTE)
         self.rois = RoiPanel(tm, self.server, self.opts, self.lock_for_render, self.wait_for_frames)
         self.pick, self.radius = self.rois.pick_box, self.rois.radius
         checks = {"mode": (self.mode, self._check_mode), "band": (self.band, self._check_band),

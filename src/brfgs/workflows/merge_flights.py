@@ -84,6 +84,9 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     scenes = [read_scene(r, split_seed=split_seed) for r in roots]
     for r, meta, sc in zip(roots[1:], metas[1:], scenes[1:]):
         _check_same(metas[0], meta, r / "transforms.json", scenes[0].wavelengths_nm, sc.wavelengths_nm)
+        if not np.allclose(sc.diffuse_fraction, scenes[0].diffuse_fraction, rtol=0, atol=1e-6):
+            raise UserError("the flights' diffuse fractions differ (one merged scene has one sky share per band)",
+                            file=r / "transforms.json", field="diffuse_fraction")
     merged = {k: v for k, v in metas[0].items() if k not in ("frames", "sun_zenith_deg", "sun_azimuth_deg",
                                                                 "dark_frames", "flights")}
     merged["flights"] = []
