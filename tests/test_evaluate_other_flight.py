@@ -133,3 +133,23 @@ def test_a_model_with_shadows_trains_from_a_stage1_and_relights_another_flight(f
     light = (1 - lm.diffuse_fraction.numpy()) * rv.sun_lit[..., None] + lm.diffuse_fraction.numpy()
     np.testing.assert_allclose(rv.cube, lm.decode(rv.latent) * light, rtol=1e-4, atol=1e-5)
     assert rv.sun_lit.max() - rv.sun_lit.min() > 0.05 and rv.sun_lit.max() <= 1.0 + 1e-6  # the geometry shades
+
+
+def test_brf_of_another_flight_is_under_its_sun(flights, capsys):
+    """`brfgs brf RUN --scene B`: the BRF (principal plane, observations) under B's sun, the model rendered
+    for it; --sun-* under any sun, where the simulator's truth (rendered under the scene's own sun) is left out."""
+    a, b, run = flights
+    common = ["--roi", "material:grass", "--no-polar", "--step", "15", "--quiet", "--backend", "torch"]
+    assert main(["brf", str(run), *common, "--scene", str(b), "--no-truth-render", "-o", str(run / "brf_b")]) == 0
+    s = json.loads((run / "brf_b" / "brf.json").read_text())
+    assert (s["sun_zenith_deg"], s["sun_azimuth_deg"]) == (55.0, 220.0)
+    assert s["principal_plane"]["hotspot_signed_zenith_deg"] == 55.0
+    capsys.readouterr()
+    assert main(["brf", str(run), *common, "--scene", str(b), "--sun-zenith", "40", "-o", str(run / "brf_40")]) == 0
+    assert "no truth comparison" in capsys.readouterr().err
+    s40 = json.loads((run / "brf_40" / "brf.json").read_text())
+    assert (s40["sun_zenith_deg"], s40["sun_azimuth_deg"]) == (40.0, 220.0) and "truth_error_csv" not in s40["files"]
+    pp_b = np.loadtxt(run / "brf_b" / "principal_plane.csv", delimiter=",", skiprows=1)
+    pp_40 = np.loadtxt(run / "brf_40" / "principal_plane.csv", delimiter=",", skiprows=1)
+    assert not np.allclose(pp_b[:, 1:-1], pp_40[:, 1:-1])                  # another sun, another BRF
+    assert main(["brf", str(run), *common, "--sun-zenith", "95"]) == 2

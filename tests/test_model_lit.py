@@ -119,7 +119,6 @@ def test_backprojected_reflectance_limits(tmp_path):
     every pixel: that mean divided by c_b."""
     from brfgs.model import init_from_points
     from brfgs.model.camera import cameras_from_description
-    from brfgs.train.images import ImageStore  # noqa: F401  (the store type the targets read)
     from brfgs.train.targets import backprojected_reflectance, backprojected_targets
 
     root = make_scene(tmp_path / "s", w=20, h=14, n_bands=5)

@@ -297,6 +297,7 @@ def frame_observations(
     progress: bool = False,
     min_alpha: float = MIN_ALPHA,
     outlier_k_mad: float = 3.0,
+    sun_deg: tuple[float, float] | None = None,
 ) -> list[FrameObservation]:
     """ROI statistics of every frame of the model (training poses), optionally with images.
 
@@ -307,9 +308,11 @@ def frame_observations(
     uses the same pixels); with the
     scene's truth/ (simulated scenes), the truth mean over the pixels whose *true* surface
     point (truth/depth) lies in the ROI (same outlier removal). The view direction is measured from the ROI centre.
+    The model is rendered under the sun ``sun_deg`` = (zenith, azimuth) deg (default: the acquisition's).
     """
     target = _roi_target(tm, roi)
-    omega_i = tm.sun_direction()
+    sun_z, sun_a = (tm.sun_zenith_deg, tm.sun_azimuth_deg) if sun_deg is None else sun_deg
+    omega_i = tm.sun_direction(sun_z, sun_a)
     intr = tm.intrinsics
     name_to_index = {}
     if scene is not None:
@@ -320,7 +323,7 @@ def frame_observations(
     out = []
     for fr in tqdm(frames, desc="frames", leave=False, disable=not progress):
         c2w = np.asarray(fr["c2w"], float)
-        zen, az, rel, signed, off = _frame_geometry(c2w, target, tm.sun_azimuth_deg)
+        zen, az, rel, signed, off = _frame_geometry(c2w, target, sun_a)
         rec, n, mask, pix = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha,
                                                return_pixels=True)
         obs = None

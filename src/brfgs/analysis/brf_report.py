@@ -77,6 +77,7 @@ class _BRFRun:
     scene: Scene | None
     do_truth: bool
     warn: Callable[[str], None]
+    sun: tuple[float, float] = (0.0, 0.0)              # (zenith, azimuth) deg of the BRF
     region: ROI | None = None                          # resolved inside the run's thread setting
     summary: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -89,7 +90,8 @@ class _BRFRun:
     def sampling(self) -> dict:
         """Keyword arguments of the model's BRF sampling (brfgs.analysis.brf.roi_brf)."""
         o = self.opts
-        return {"size": o.size, "distance_m": o.distance_m, "backend": o.backend, "min_alpha": o.min_alpha}
+        return {"size": o.size, "distance_m": o.distance_m, "backend": o.backend, "min_alpha": o.min_alpha,
+                "sun_deg": self.sun}
 
     def cols(self, prefix: str) -> list[str]:
         return [f"{prefix}_{w:.0f}nm" for w in self.wl]
@@ -111,8 +113,8 @@ def _principal_plane(r: _BRFRun) -> tuple[np.ndarray, B.ROIBRF]:
                               progress=o.progress, **r.sampling())
     r.timings["principal_plane_s"] = time.perf_counter() - t
     peaks = {f"{w:.0f}": B.curve_peak(s, pp.values[:, j]) for j, w in enumerate(r.wl)}
-    r.summary["principal_plane"] = {"peak_signed_zenith_deg": peaks, "hotspot_signed_zenith_deg": tm.sun_zenith_deg,
-                                    "specular_signed_zenith_deg": -tm.sun_zenith_deg,
+    r.summary["principal_plane"] = {"peak_signed_zenith_deg": peaks, "hotspot_signed_zenith_deg": r.sun[0],
+                                    "specular_signed_zenith_deg": -r.sun[0],
                                     "camera": pp.extra, "min_pixels": int(pp.n_pixels.min()),
                                     "directions_without_roi_pixels": int((pp.n_pixels == 0).sum()),
                                     "min_alpha": o.min_alpha}
@@ -143,7 +145,7 @@ def _principal_plane_truth(r: _BRFRun, s: np.ndarray, pp: B.ROIBRF) -> tuple[np.
     t = time.perf_counter()
     n_t = int(round(2 * o.max_zenith_deg / tr.step_deg)) + 1
     truth_s = np.linspace(-o.max_zenith_deg, o.max_zenith_deg, n_t)
-    tz, ta = principal_plane_directions(truth_s, r.tm.sun_azimuth_deg)
+    tz, ta = principal_plane_directions(truth_s, r.sun[1])
     tb = truth_brf(r.scene.root, r.region, tz, ta, _truth_bands(r), distance_m=pp.extra["distance_m"],
                    size=tr.size, spp=tr.spp, progress=o.progress)
     r.timings["truth_render_s"] = time.perf_counter() - t
@@ -177,7 +179,7 @@ def _plot_principal_plane(r: _BRFRun, s: np.ndarray, pp: B.ROIBRF, near: list[B.
                           truth_curve: tuple[np.ndarray | None, np.ndarray | None]) -> None:
     seen = [o for o in near if o.observed is not None]
     tru = [o for o in near if o.truth is not None]
-    sz = r.tm.sun_zenith_deg
+    sz = r.sun[0]
     plots.plot_principal_plane(r.out / "principal_plane.png", s, pp.values, r.wl, sz,
                                title=f"{r.region.name}: principal plane (sun zenith {sz:.1f}°)",
                                obs_signed_zenith_deg=[o.signed_zenith_deg for o in seen],
@@ -198,11 +200,11 @@ def _polar(r: _BRFRun) -> tuple[np.ndarray, np.ndarray, np.ndarray, B.ROIBRF]:
                                     max_zenith_deg=o.max_zenith_deg, progress=o.progress, **r.sampling())
     r.timings["polar_map_s"] = time.perf_counter() - t
     counts = res.n_pixels.reshape(len(zc), len(ac))
-    rows = [[float(z), float(a), float(relative_azimuth_deg(a, tm.sun_azimuth_deg))]
+    rows = [[float(z), float(a), float(relative_azimuth_deg(a, r.sun[1]))]
             + [float(v) for v in vals[i, k]] + [int(counts[i, k])] for i, z in enumerate(zc) for k, a in enumerate(ac)]
     plots.write_csv(r.out / "polar.csv", ["view_zenith_deg", "view_azimuth_deg", "relative_azimuth_deg"]
                     + r.cols("brf") + ["n_pixels"], rows)
-    plots.plot_polar(r.out / "polar.png", zc, ac, vals, r.wl, tm.sun_zenith_deg, tm.sun_azimuth_deg,
+    plots.plot_polar(r.out / "polar.png", zc, ac, vals, r.wl, *r.sun,
                      title=f"{r.region.name}: BRF over the view hemisphere", max_zenith_deg=o.max_zenith_deg)
     flat = vals.reshape(-1, len(r.bi))
     kmax = np.nanargmax(np.where(np.isfinite(flat), flat, -np.inf), axis=0)
@@ -233,7 +235,7 @@ def _polar_truth_renders(r: _BRFRun, distance_m: float) -> tuple[np.ndarray, np.
 
 def _polar_truth(r: _BRFRun, model: plots.PolarGrid, distance_m: float) -> None:
     """Model vs simulator truth on a coarse polar grid: polar_truth.csv / .png and the summary's errors."""
-    tm, tr = r.tm, r.opts.truth
+    tr = r.opts.truth
     tzc, tac, tpb, mtb = _polar_truth_renders(r, distance_m)
     TZ, TA = np.meshgrid(tzc, tac, indexing="ij")
     shape = (len(tzc), len(tac), len(r.bi))
@@ -241,11 +243,11 @@ def _polar_truth(r: _BRFRun, model: plots.PolarGrid, distance_m: float) -> None:
     plots.write_csv(r.out / "polar_truth.csv",
                     ["view_zenith_deg", "view_azimuth_deg", "relative_azimuth_deg"] + r.cols("truth") + r.cols("model")
                     + ["n_pixels_truth", "n_pixels_model"],
-                    [[float(TZ.flat[k]), float(TA.flat[k]), float(relative_azimuth_deg(TA.flat[k], tm.sun_azimuth_deg))]
+                    [[float(TZ.flat[k]), float(TA.flat[k]), float(relative_azimuth_deg(TA.flat[k], r.sun[1]))]
                      + [float(v) for v in tpb.values[k]] + [float(v) for v in mtb.values[k]]
                      + [int(tpb.n_pixels[k]), int(mtb.n_pixels[k])] for k in range(TZ.size)])
     plots.plot_polar_truth(r.out / "polar_truth.png", model, plots.PolarGrid(tzc, tac, tpb.values.reshape(shape)),
-                           mtb.values.reshape(shape), r.wl, tm.sun_zenith_deg, tm.sun_azimuth_deg,
+                           mtb.values.reshape(shape), r.wl, *r.sun,
                            max_zenith_deg=r.opts.max_zenith_deg,
                            title=f"{r.region.name}: BRF-GS vs simulator truth over the view hemisphere")
     tflat = np.where(np.isfinite(tpb.values), tpb.values, -np.inf)
@@ -278,7 +280,7 @@ def _sample_brf(r: _BRFRun) -> list[B.FrameObservation]:
     if r.scene is not None:
         t = time.perf_counter()
         obs = B.frame_observations(r.tm, r.region, r.scene, backend=r.opts.backend, progress=r.opts.progress,
-                                   min_alpha=r.opts.min_alpha)
+                                   min_alpha=r.opts.min_alpha, sun_deg=r.sun)
         r.timings["observations_s"] = time.perf_counter() - t
     near = _plane_observations(r, obs)
     truth_curve = _principal_plane_truth(r, s, pp) if r.do_truth else (None, None)
@@ -356,12 +358,27 @@ def _start(run: str | Path, opts: BRFOptions, out: str | Path | None,
         raise UserError("this model has no spectra (CIR variant); BRF analysis needs a spectral model", file=run)
     bi = tm.band_indices(opts.bands_nm)
     sc = open_model_scene(tm, opts.scene, required=(spec.kind == "material"))
+    sun = _brf_sun(tm, sc if opts.scene is not None else None, opts)
     do_truth = sc is not None and opts.truth.render and has_simulator_truth(sc.root)
+    if do_truth and max(abs(sun[0] - sc.sun_zenith_deg), abs(relative_azimuth_deg(sun[1], sc.sun_azimuth_deg))) > 0.01:
+        warn(f"note: the simulator's truth is rendered under the scene's own sun ({sc.sun_zenith_deg:.1f}°, "
+             f"{sc.sun_azimuth_deg:.1f}°), not this BRF's: no truth comparison (pass --scene with that sun)")
+        do_truth = False
     if do_truth:
         check_truth_spp(sc.root, opts.truth.spp, field="--truth-spp")
     out = Path(out) if out is not None else run_folder(Path(run)) / "analysis" / f"brf_{safe_name(spec.name)}"
     prepare_output_dir(out, "brf.json", opts.overwrite, tm.scene_root)
-    return spec, _BRFRun(tm, opts, out, bi, sc, do_truth, warn)
+    return spec, _BRFRun(tm, opts, out, bi, sc, do_truth, warn, sun)
+
+
+def _brf_sun(tm: TrainedModel, scene: Scene | None, opts: BRFOptions) -> tuple[float, float]:
+    """(zenith, azimuth) deg of the BRF: ``--sun-zenith``/``--sun-azimuth`` where given, else the sun of
+    the ``--scene`` (another flight's), else the model's training sun."""
+    z0, a0 = (scene.sun_zenith_deg, scene.sun_azimuth_deg) if scene is not None else (tm.sun_zenith_deg,
+                                                                                       tm.sun_azimuth_deg)
+    z = z0 if opts.sun_zenith_deg is None else float(opts.sun_zenith_deg)
+    a = a0 if opts.sun_azimuth_deg is None else float(opts.sun_azimuth_deg)
+    return float(z), float(a) % 360.0
 
 
 def _stderr(message: str) -> None:
@@ -382,8 +399,8 @@ def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
         atomic.write_json(r.out / "roi.json", r.region.describe())
         r.timings["roi_s"] = time.perf_counter() - t0
         r.summary = {"model": r.tm.source, "scene": r.tm.scene_name, "roi": r.region.describe(),
-                     "bands_nm": [float(w) for w in r.wl], "sun_zenith_deg": r.tm.sun_zenith_deg,
-                     "sun_azimuth_deg": r.tm.sun_azimuth_deg, "files": {}}
+                     "bands_nm": [float(w) for w in r.wl], "sun_zenith_deg": r.sun[0],
+                     "sun_azimuth_deg": r.sun[1], "files": {}}
         obs = _sample_brf(r)
     _spectra(r, obs)
     _observations(r, obs)
@@ -392,6 +409,6 @@ def brf_report(run: str | Path, opts: BRFOptions, out: str | Path | None = None,
     atomic.write_json(r.out / "brf.json", r.summary)
     peaks = r.summary["principal_plane"]["peak_signed_zenith_deg"]
     pk = ", ".join(f"{k} nm: {v:+.1f}°" for k, v in peaks.items())
-    sz = r.tm.sun_zenith_deg
+    sz = r.sun[0]
     return Report(r.out, r.summary, f"{spec.name}: principal-plane peaks {pk} (hotspot +{sz:.1f}°, "
                                     f"specular -{sz:.1f}°) -> {r.out}")

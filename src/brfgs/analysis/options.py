@@ -131,6 +131,10 @@ class BRFOptions:
     bands_nm: tuple[float, ...] = _f((480.0, 680.0, 760.0, 860.0), "Wavelengths (nm) of the curves and maps.",
                                      flag="--bands")
     scene: Optional[Path] = _f(None, "Scene folder for observations and truth (default: the training scene).")
+    sun_zenith_deg: Optional[float] = _f(None, "Sun zenith (deg) of the BRF (default: the --scene's sun, else the "
+                                         "training sun).", flag="--sun-zenith")
+    sun_azimuth_deg: Optional[float] = _f(None, "Sun azimuth (deg) of the BRF (default: as the zenith).",
+                                          flag="--sun-azimuth")
     step_deg: float = _f(2.5, "Principal-plane step (deg).", flag="--step")
     max_zenith_deg: float = _f(75.0, "Largest view zenith (deg).", flag="--max-zenith")
     polar_azimuths: int = _f(60, "Azimuth sectors of the polar map.")
@@ -152,6 +156,8 @@ class BRFOptions:
     def validate(self) -> "BRFOptions":
         check_range("step_deg", self.step_deg, 0.1, flag="--step")
         check_range("max_zenith_deg", self.max_zenith_deg, 1.0, 85.0, flag="--max-zenith")
+        check_range("sun_zenith_deg", self.sun_zenith_deg, 0.0, 89.0, flag="--sun-zenith")
+        check_range("sun_azimuth_deg", self.sun_azimuth_deg, -360.0, 360.0, flag="--sun-azimuth")
         check_range("polar_azimuths", self.polar_azimuths, 4)
         check_range("polar_zeniths", self.polar_zeniths, 2)
         check_range("min_alpha", self.min_alpha, 0.0, 1.0)

@@ -14,7 +14,6 @@ from torch import Tensor, nn
 
 from brfgs.brdf.geometry import gaussian_normals, shading_normals, view_directions
 from brfgs.brdf.head import HeadConfig, evaluate_head, hybrid_kernels, roughness_from_raw
-from brfgs.brdf.sh import sh_basis
 from brfgs.model.camera import Camera
 from brfgs.model.gaussians import GaussianModel
 

@@ -3,7 +3,6 @@ the options (paper eqs. 24–27 plus the geometry priors of :mod:`brfgs.train.lo
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

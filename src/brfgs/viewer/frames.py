@@ -38,7 +38,7 @@ from brfgs.model.view import RenderedView
 from brfgs.spectral.band_decode import decode_bands
 from brfgs.viewer.formula import NDVI, IndexFormula, parse_formula
 
-__all__ = ["DisplayMode", "parse_mode", "FrameResult", "render_frame", "frame_comparison", "warm_up", "MODE_NAMES",
+__all__ = ["DisplayMode", "parse_mode", "FrameResult", "render_frame", "frame_comparison", "MODE_NAMES",
            "TRUECOLOR_NM", "SURFACE_MIN_ALPHA"]
 
 TRUECOLOR_NM = (640.0, 550.0, 470.0)
