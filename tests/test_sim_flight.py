@@ -47,6 +47,9 @@ def test_timed_flight_with_irradiance_drift(tmp_path):
     text = format_summary(summ)
     assert "frame suns" in text and "irradiance scale" in text and "origin" in text
     assert set(summ.ring_spacing_deg) == set(summ.rings) and "view spacing" in text
+    # the simulator's sky share is the scene's field (a downwelling sensor's), shown by inspect
+    assert summ.diffuse_fraction_source == "transforms.json" and "diffuse fraction" in text
+    np.testing.assert_allclose(summ.diffuse_fraction, 0.1 * (550.0 / sc.wavelengths_nm) ** 2.5, rtol=0, atol=1e-6)
     # the reader divides each frame by its irradiance scale: observed / scale ≈ the clean truth
     for i in (2, 9):
         obs, truth = sc.load_image(i), sc.load_truth(i)

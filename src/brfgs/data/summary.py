@@ -37,6 +37,8 @@ class SceneSummary:
     nearest_hotspot_deg: float                  # smallest angle of a view to the hotspot direction
     nearest_specular_deg: float                 # smallest angle of a view to the specular direction
     sigma_source: str
+    diffuse_fraction_source: str = "clear-sky default"
+    diffuse_fraction: list[float] = field(default_factory=list)  # [B] sky share of the irradiance
     wavelengths_nm: list[float] = field(default_factory=list)
     sigma: list[float] = field(default_factory=list)
     mean_reflectance: list[float] = field(default_factory=list)
@@ -84,6 +86,7 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         n_azimuth_sectors=int(sectors), phase_angle_range_deg=(float(phase.min()), float(phase.max())),
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
+        diffuse_fraction_source=scene.diffuse_fraction_source, diffuse_fraction=scene.diffuse_fraction.tolist(),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
         invalid_pixels=dict(scene.invalid_counts), bright_pixels=dict(scene.bright_counts), rings=_ring_counts(scene),
         nearest_train_view_deg=scene.nearest_train_view_deg(), ring_spacing_deg=_ring_spacing(scene, views),
@@ -182,6 +185,8 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
         f"phase angle      {s.phase_angle_range_deg[0]:.1f}-{s.phase_angle_range_deg[1]:.1f} deg "
         f"(nearest view to hotspot {s.nearest_hotspot_deg:.1f} deg, to specular {s.nearest_specular_deg:.1f} deg)",
         f"noise sigma      from {s.sigma_source}",
+        f"diffuse fraction {min(s.diffuse_fraction):.3f}-{max(s.diffuse_fraction):.3f} of the irradiance from the sky "
+        f"({s.diffuse_fraction_source}; how dark shadows are with brfgs train --shadows)",
     ]
     lines += _flight_lines(s.flight)
     n_bad = sum(s.invalid_pixels.values())
