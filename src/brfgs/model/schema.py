@@ -12,6 +12,7 @@ from pathlib import Path
 
 from torch import Tensor
 
+from brfgs.data.sky import MAX_DIFFUSE_FRACTION
 from brfgs.errors import UserError
 from brfgs.model.gaussians import APPEARANCES, GEOMETRY_KEYS
 from brfgs.spectral.decoders import DESCRIPTION_KEYS, SPECTRAL_BASES
@@ -38,8 +39,9 @@ def _check_scene(scene, path: Path) -> None:
            "expected a sun zenith in [0, 90) degrees", path, "scene.sun_zenith_deg")
     _check(_number(scene.get("sun_azimuth_deg")), "expected a finite sun azimuth (deg)", path, "scene.sun_azimuth_deg")
     df = scene.get("diffuse_fraction")
-    _check(df is None or (isinstance(df, list) and len(df) == len(wl) and all(_number(v) and 0 <= v < 1 for v in df)),
-           "expected one diffuse fraction in [0, 1) per band", path, "scene.diffuse_fraction")
+    _check(df is None or (isinstance(df, list) and len(df) == len(wl)
+                          and all(_number(v) and 0 <= v <= MAX_DIFFUSE_FRACTION for v in df)),
+           f"expected one diffuse fraction in [0, {MAX_DIFFUSE_FRACTION}] per band", path, "scene.diffuse_fraction")
     intr = scene.get("intrinsics")
     _check(isinstance(intr, dict) and all(_number(intr.get(k)) for k in INTRINSIC_KEYS)
            and intr["fl_x"] > 0 and intr["fl_y"] > 0 and int(intr["w"]) >= 1 and int(intr["h"]) >= 1,

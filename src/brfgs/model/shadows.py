@@ -38,7 +38,7 @@ from brfgs.model.camera import Camera, camera_from_intrinsics
 from brfgs.model.rendering import rasterize_splats
 
 __all__ = ["SUN_DISTANCE_M", "SUN_MAP_PX", "sun_camera", "gaussian_visibility", "gaussian_sun_visibility",
-           "scene_diffuse_fraction", "sun_sky_light"]
+           "scene_diffuse_fraction", "pixel_visibility", "sun_sky_light"]
 
 SUN_DISTANCE_M = 1.0e4     # the sun camera's distance from the scene
 SUN_MAP_PX = 768           # the sun camera's largest image side (pixels; 96 planes: ~230 MB)
@@ -137,6 +137,15 @@ def scene_diffuse_fraction(scene: dict) -> Tensor:  # [B] float32
     if f is None:
         f = clear_sky_diffuse_fraction(np.asarray(scene["wavelengths_nm"], float))
     return torch.as_tensor(np.asarray(f, np.float64), dtype=torch.float32)
+
+
+def pixel_visibility(
+    blended: Tensor,  # [...] the Gaussians' visibilities V rendered as a feature (premultiplied)
+    alpha: Tensor,  # [...] the pixels' opacity
+) -> Tensor:  # [...]
+    """The direct-sun visibility of rendered pixels: the blended V plus the background's share 1 − α,
+    which is lit."""
+    return blended + (1.0 - alpha.to(blended.dtype))
 
 
 def sun_sky_light(

@@ -30,7 +30,7 @@ from brfgs.data.cir import cir_composite
 from brfgs.model.camera import Camera
 from brfgs.model.rendering import (FeaturesFn, composite_background, decode_image, frustum_subset,
                                    rasterize_splats)
-from brfgs.model.shadows import sun_sky_light
+from brfgs.model.shadows import pixel_visibility, sun_sky_light
 from brfgs.model.trained import TrainedModel
 from brfgs.spectral.decoders import is_linear
 from brfgs.render import RenderOutput
@@ -112,7 +112,7 @@ def split_light(model: TrainedModel, image: Tensor, alpha: Tensor) -> tuple[Tens
     pixel's direct-sun visibility [...] with the background lit, or None for a model without shadows)."""
     if not model.shadowed:
         return image, None
-    return image[..., :-1], image[..., -1] + (1.0 - alpha.to(image.dtype))
+    return image[..., :-1], pixel_visibility(image[..., -1], alpha)
 
 
 @torch.no_grad()

@@ -21,7 +21,7 @@ from brfgs.init.truth import surface_samples
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
 from brfgs.model.rendering import rasterize_splats
-from brfgs.model.shadows import sun_sky_light
+from brfgs.model.shadows import pixel_visibility, sun_sky_light
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
 from brfgs.spectral.fast_encode import encode_spectra
 from brfgs.spectral.linear_basis import fit_linear_basis
@@ -178,7 +178,7 @@ def view_light(state: TrainState, i: int, backend: str = "auto") -> Tensor:  # [
     out = rasterize_splats(g.means.detach(), g.quats.detach(), g.scales.detach(), g.opacities.detach(),
                            state.sun_visibility(i)[:, None], cam, backend, state.cfg.antialias,
                            supersample=state.cfg.supersample)
-    return sun_sky_light(state.diffuse_fraction, out.image[..., 0] + (1.0 - out.alpha))
+    return sun_sky_light(state.diffuse_fraction, pixel_visibility(out.image[..., 0], out.alpha))
 
 
 def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -> None:

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from brfgs.model.camera import Camera
 from brfgs.model.features import camera_depth_normals, gaussian_features, stage1_colors
-from brfgs.model.shadows import sun_sky_light
+from brfgs.model.shadows import pixel_visibility, sun_sky_light
 from brfgs.model.rendering import (
     composite_background, decode_image, frustum_subset, rasterize_features, rasterize_splats,
 )
@@ -309,7 +309,8 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     else:
         light = None
         if vis is not None:  # the pixel's blended visibility, the background lit
-            image, light = image[..., :-1], sun_sky_light(state.diffuse_fraction, image[..., -1] + (1.0 - out.alpha))
+            vis_pix = pixel_visibility(image[..., -1], out.alpha)  # [H, W]
+            image, light = image[..., :-1], sun_sky_light(state.diffuse_fraction, vis_pix)
         lat = composite_background(image, out.alpha, state.extra["bg_latent"])
         loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg, state.gen if gen is None else gen, light)
     return StepResult(loss, psnr, out)
