@@ -6,9 +6,11 @@ not share the model's frame are refused in one line."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
+import spectral
 import torch
 
 from brfgs.cli import main
@@ -133,6 +135,20 @@ def test_a_model_with_shadows_trains_from_a_stage1_and_relights_another_flight(f
     light = (1 - lm.diffuse_fraction.numpy()) * rv.sun_lit[..., None] + lm.diffuse_fraction.numpy()
     np.testing.assert_allclose(rv.cube, lm.decode(rv.latent) * light, rtol=1e-4, atol=1e-5)
     assert rv.sun_lit.max() - rv.sun_lit.min() > 0.05 and rv.sun_lit.max() <= 1.0 + 1e-6  # the geometry shades
+    # a flight under a hazier sky (its own diffuse fraction): its frames are lit by that sky
+    hazy = tmp_path / "hazy"
+    shutil.copytree(b, hazy)
+    meta = json.loads((hazy / "transforms.json").read_text())
+    meta["diffuse_fraction"] = 0.4
+    (hazy / "transforms.json").write_text(json.dumps(meta))
+    assert main(["evaluate", str(lit), "--scene", str(hazy), "--quiet", "--backend", "torch"]) == 0
+    written = spectral.open_image(str(lit / "evaluate" / "hazy-sun-scene" / "eval" / "renders" / f"{f.name}.hdr"))
+    lit_hazy = render(lm, camera_from_intrinsics(f.c2w, sc.intrinsics, f.name), sun_zenith_deg=55.0,
+                      sun_azimuth_deg=220.0, backend="torch", diffuse_fraction=0.4)
+    np.testing.assert_allclose(lit_hazy.cube, lm.decode(rv.latent) * (0.6 * rv.sun_lit[..., None] + 0.4), rtol=1e-4,
+                               atol=1e-5)
+    np.testing.assert_allclose(np.asarray(written.load()), lit_hazy.cube, rtol=1e-5, atol=1e-6)
+    assert np.abs(lit_hazy.cube - rv.cube).max() > 1e-3
 
 
 def test_brf_of_another_flight_is_under_its_sun(flights, capsys):

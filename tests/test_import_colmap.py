@@ -88,6 +88,12 @@ def test_import_colmap_opencv_cameras_and_bad_input(tmp_path, capsys):
     assert main(["import", "colmap", str(root), "--overwrite", "--sidecar", str(root / "few.json")]) == 2
     assert "camera_positions_enu" in capsys.readouterr().err
     assert main(["import", "colmap", str(tmp_path / "nowhere")]) == 2
+    side = json.loads((root / "spectral.json").read_text())             # a frame under its own sky
+    (root / "sky.json").write_text(json.dumps({**side, "frames": {"view_01": {"diffuse_fraction": 0.3}}}))
+    assert main(["import", "colmap", str(root), "--overwrite", "--sidecar", str(root / "sky.json")]) == 0
+    sc = read_scene(root)
+    k = [f.name for f in sc.frames].index("view_01")
+    assert np.allclose(sc.frame_diffuse_fraction(k), 0.3) and sc.frames[k - 1 if k else k + 1].diffuse_fraction is None
 
 
 _FLIGHT = ["--size", "32", "--bands", "16", "--views", "13", "--spp", "4", "--dark-frames", "2", "--origin",

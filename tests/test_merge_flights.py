@@ -5,6 +5,7 @@ on it renders each frame under that frame's sun. Flights that are not one site a
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -59,6 +60,36 @@ def test_a_model_of_both_flights_renders_each_under_its_sun(flights, tmp_path):
     res = json.loads((tmp_path / "run" / "metrics.json").read_text())
     names = [v["name"] for v in res["against"]["truth"]["views"]]
     assert any(n.startswith("morning_") for n in names) and any(n.startswith("noon_") for n in names)
+
+
+def test_flights_under_other_skies_keep_each_its_own(flights, tmp_path, capsys):
+    """A flight with its own diffuse fraction merges with one under the clear-sky default: every merged
+    frame carries its flight's sky, and training lights each frame with it."""
+    from brfgs.model.camera import scene_description
+    from brfgs.model.shadows import scene_diffuse_fraction
+    from brfgs.train.presets import preset
+    from brfgs.train.state import TrainState
+
+    root, a, b = flights
+    hazy = tmp_path / "noon"
+    shutil.copytree(b, hazy)
+    meta = json.loads((hazy / "transforms.json").read_text())
+    meta["diffuse_fraction"] = 0.35
+    (hazy / "transforms.json").write_text(json.dumps(meta))
+    out = tmp_path / "both"
+    assert main(["merge", str(out), str(a), str(hazy)]) == 0
+    m, sa = read_scene(out), read_scene(a)
+    for i in range(len(m.frames)):
+        want = sa.diffuse_fraction if i < len(sa.frames) else np.full(len(sa.wavelengths_nm), 0.35)
+        np.testing.assert_allclose(m.frame_diffuse_fraction(i), want, atol=1e-6)
+    capsys.readouterr()
+    assert main(["inspect", str(out)]) == 0
+    assert "26 frame(s) with their own" in capsys.readouterr().out
+    state = TrainState(preset("tiny", shadows=True))     # what training lights each frame with
+    state.meta["scene"] = json.loads(json.dumps(scene_description(m, np.stack([f.c2w for f in m.frames]))))
+    assert np.allclose(state.diffuse_fraction(13).numpy(), 0.35, atol=1e-6)
+    np.testing.assert_allclose(state.diffuse_fraction(0).numpy(), sa.diffuse_fraction, atol=1e-6)
+    np.testing.assert_allclose(scene_diffuse_fraction(state.meta["scene"], 20).numpy(), 0.35, atol=1e-6)
 
 
 def test_flights_that_are_not_one_site_are_refused(flights, tmp_path, capsys):

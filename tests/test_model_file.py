@@ -110,6 +110,9 @@ def test_damaged_fields_and_tensors_are_named(tmp_path):
     m = json.loads(json.dumps(meta))
     m["scene"]["sun_zenith_deg"] = 120
     cases.append((json.dumps(m), None, "scene.sun_zenith_deg"))
+    m = json.loads(json.dumps(meta))
+    m["scene"]["frames"][1]["diffuse_fraction"] = [0.95] * len(m["scene"]["wavelengths_nm"])
+    cases.append((json.dumps(m), None, "scene.frames[1].diffuse_fraction"))
     t = load_file(str(path))
     nan = dict(t)
     nan["param.means"] = t["param.means"].clone()

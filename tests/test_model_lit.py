@@ -106,6 +106,26 @@ def test_the_field_is_read_and_checked(tmp_path):
             assert "diffuse_fraction" in str(e.value.field) and e.value.file is not None
 
 
+def test_a_frame_may_carry_its_own_sky(tmp_path):
+    """frames[k].diffuse_fraction overrides the scene's for that frame (a flight under another sky);
+    a bad one is refused naming that frame's field."""
+    root = make_scene(tmp_path / "s")
+    tf = root / "transforms.json"
+    meta = json.loads(tf.read_text())
+    meta["diffuse_fraction"] = 0.1
+    meta["frames"][1]["diffuse_fraction"] = [0.3, 0.25, 0.2, 0.15, 0.1, 0.05]
+    tf.write_text(json.dumps(meta))
+    sc = read_scene(root, bands=[1, 2, 4])
+    np.testing.assert_allclose(sc.frame_diffuse_fraction(0), [0.1, 0.1, 0.1])
+    np.testing.assert_allclose(sc.frame_diffuse_fraction(1), [0.25, 0.2, 0.1])      # the selected bands
+    for bad in (0.95, [0.2] * 5, "haze"):
+        meta["frames"][1]["diffuse_fraction"] = bad
+        tf.write_text(json.dumps(meta))
+        with pytest.raises(UserError) as e:
+            read_scene(root)
+        assert str(e.value.field).startswith("frames[1].diffuse_fraction") and str(e.value.file) == str(tf)
+
+
 def test_the_options_refuse_what_cannot_have_shadows():
     assert preset("tiny", shadows=True).shadows
     for bad in (dict(joint=True), dict(variant="cir")):

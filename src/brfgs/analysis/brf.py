@@ -108,22 +108,25 @@ def roi_mean_from_view(
     backend: str = "auto",
     min_alpha: float = MIN_ALPHA,
     return_pixels: bool = False,
+    diffuse_fraction=None,
 ) -> tuple:
     """(mean reflectance [B], number of ROI pixels, ROI mask [H, W]) of one rendered view
     (plus the decoded ROI pixels [n, B] in mask order when ``return_pixels``).
 
     Spectra in the model's decode order (:func:`brfgs.model.view.pixel_spectra`); with order
     "pixel" only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per
-    pixel and then averaged, as a sensor would average reflectance).
+    pixel and then averaged, as a sensor would average reflectance). A model trained with shadows is
+    lit under the sky ``diffuse_fraction`` (default its own; :func:`brfgs.model.view.sky_share`).
     """
-    rv = render(tm, camera_from_intrinsics(c2w, intr), features=spectral_features(tm, omega_i), backend=backend)
+    rv = render(tm, camera_from_intrinsics(c2w, intr), features=spectral_features(tm, omega_i, backend=backend,
+                diffuse_fraction=diffuse_fraction), backend=backend)
     mask = roi_pixels(roi, rv.depth, rv.alpha, c2w, intr, min_alpha=min_alpha)
     n = int(mask.sum())
     if n == 0:
         empty = np.full(len(tm.wavelengths_nm), np.nan, np.float32)
         return (empty, 0, mask, np.zeros((0, len(empty)), np.float32)) if return_pixels else (empty, 0, mask)
     m = torch.as_tensor(mask)
-    spec = pixel_spectra(tm, rv.image[m], torch.as_tensor(rv.alpha)[m])  # [n, B]
+    spec = pixel_spectra(tm, rv.image[m], torch.as_tensor(rv.alpha)[m], diffuse_fraction=diffuse_fraction)  # [n, B]
     if return_pixels:
         return spec.mean(0), n, mask, spec
     return spec.mean(0), n, mask
@@ -178,12 +181,13 @@ def roi_brf(
     size: int | None = None,
     distance_m: float | None = None,
     backend: str = "auto",
-    progress: bool = False,
-    desc: str = "BRF",
+    progress: bool | str = False,
     min_alpha: float = MIN_ALPHA,
+    diffuse_fraction=None,
 ) -> ROIBRF:
     """BRF of ``roi`` for the directions (arrays of equal length, degrees) in bands ``band_idx``,
-    under the sun ``sun_deg`` = (zenith, azimuth) in degrees (default: the acquisition's).
+    under the sun ``sun_deg`` = (zenith, azimuth) in degrees (default: the acquisition's) and, for a
+    model trained with shadows, the sky ``diffuse_fraction`` (default the model's).
 
     ``size``: pixels of the square ROI camera (the ROI spans ~90 % of it); default: the size
     whose pixel footprint equals the training images' (:func:`auto_roi_size`) — 3DGS renders
@@ -191,7 +195,7 @@ def roi_brf(
     rendered at the scale the model was trained on. ``distance_m``:
     camera distance (default: the training cameras' median distance, at least 8 ROI radii so
     the direction is nearly the same over the ROI). Directions where the ROI is not seen
-    (fully occluded) give NaN and 0 pixels.
+    (fully occluded) give NaN and 0 pixels. ``progress``: a progress bar (a string labels it).
     """
     zen = np.atleast_1d(np.asarray(view_zenith_deg, float))
     az = np.atleast_1d(np.asarray(view_azimuth_deg, float))
@@ -212,9 +216,11 @@ def roi_brf(
     omega_i = tm.sun_direction(sun_z, sun_a)
     vals = np.full((zen.size, bi.size), np.nan, np.float32)
     counts = np.zeros(zen.size, np.int64)
+    desc = progress if isinstance(progress, str) else "BRF"
     for k in tqdm(range(zen.size), desc=desc, leave=False, disable=not progress):
         c2w, intr = view_camera(zen.flat[k], az.flat[k], dist, target, size=size, half_extent_m=half)
-        mean, n, _ = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha)
+        mean, n, _ = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha,
+                                        diffuse_fraction=diffuse_fraction)
         counts[k] = n
         if n:
             vals[k] = mean[bi]
@@ -235,7 +241,8 @@ def principal_plane(tm: TrainedModel, roi: ROI, band_idx: Sequence[int], *, max_
     s = np.linspace(-max_zenith_deg, max_zenith_deg, n)
     sun_az = tm.sun_azimuth_deg if kw.get("sun_deg") is None else kw["sun_deg"][1]
     zen, az = principal_plane_directions(s, sun_az)
-    return s, roi_brf(tm, roi, zen, az, band_idx, desc="principal plane", **kw)
+    kw["progress"] = bool(kw.get("progress")) and "principal plane"
+    return s, roi_brf(tm, roi, zen, az, band_idx, **kw)
 
 
 def polar_map(tm: TrainedModel, roi: ROI, band_idx: Sequence[int], *, n_azimuth: int = 60, n_zenith: int = 24,
@@ -244,7 +251,8 @@ def polar_map(tm: TrainedModel, roi: ROI, band_idx: Sequence[int], *, n_azimuth:
     bands ``band_idx`` [nb]; ``kw``: the sampling options of :func:`roi_brf`."""
     zc, ac = hemisphere_grid(n_azimuth, n_zenith, max_zenith_deg)
     Z, A = np.meshgrid(zc, ac, indexing="ij")
-    res = roi_brf(tm, roi, Z.ravel(), A.ravel(), band_idx, desc="polar map", **kw)
+    kw["progress"] = bool(kw.get("progress")) and "polar map"
+    res = roi_brf(tm, roi, Z.ravel(), A.ravel(), band_idx, **kw)
     return zc, ac, res.values.reshape(len(zc), len(ac), -1), res
 
 
@@ -298,6 +306,7 @@ def frame_observations(
     min_alpha: float = MIN_ALPHA,
     outlier_k_mad: float = 3.0,
     sun_deg: tuple[float, float] | None = None,
+    diffuse_fraction=None,
 ) -> list[FrameObservation]:
     """ROI statistics of every frame of the model (training poses), optionally with images.
 
@@ -308,7 +317,8 @@ def frame_observations(
     uses the same pixels); with the
     scene's truth/ (simulated scenes), the truth mean over the pixels whose *true* surface
     point (truth/depth) lies in the ROI (same outlier removal). The view direction is measured from the ROI centre.
-    The model is rendered under the sun ``sun_deg`` = (zenith, azimuth) deg (default: the acquisition's).
+    The model is rendered under the sun ``sun_deg`` = (zenith, azimuth) deg (default: the acquisition's)
+    and the sky ``diffuse_fraction`` (a model trained with shadows; default its own).
     """
     target = _roi_target(tm, roi)
     sun_z, sun_a = (tm.sun_zenith_deg, tm.sun_azimuth_deg) if sun_deg is None else sun_deg
@@ -325,7 +335,7 @@ def frame_observations(
         c2w = np.asarray(fr["c2w"], float)
         zen, az, rel, signed, off = _frame_geometry(c2w, target, sun_a)
         rec, n, mask, pix = roi_mean_from_view(tm, roi, c2w, intr, omega_i, backend=backend, min_alpha=min_alpha,
-                                               return_pixels=True)
+                                               return_pixels=True, diffuse_fraction=diffuse_fraction)
         obs = None
         tru, tn = None, 0
         if scene is not None and fr["name"] in name_to_index and n:

@@ -78,6 +78,7 @@ class _BRFRun:
     do_truth: bool
     warn: Callable[[str], None]
     sun: tuple[float, float] = (0.0, 0.0)              # (zenith, azimuth) deg of the BRF
+    sky: np.ndarray | None = None                      # [B] diffuse fraction of --scene (None: the model's)
     region: ROI | None = None                          # resolved inside the run's thread setting
     summary: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -91,7 +92,7 @@ class _BRFRun:
         """Keyword arguments of the model's BRF sampling (brfgs.analysis.brf.roi_brf)."""
         o = self.opts
         return {"size": o.size, "distance_m": o.distance_m, "backend": o.backend, "min_alpha": o.min_alpha,
-                "sun_deg": self.sun}
+                "sun_deg": self.sun, "diffuse_fraction": self.sky}
 
     def cols(self, prefix: str) -> list[str]:
         return [f"{prefix}_{w:.0f}nm" for w in self.wl]
@@ -228,7 +229,7 @@ def _polar_truth_renders(r: _BRFRun, distance_m: float) -> tuple[np.ndarray, np.
                     size=tr.polar_size, spp=tr.spp, progress=o.progress)
     r.timings["truth_polar_render_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    mtb = B.roi_brf(r.tm, r.region, TZ.ravel(), TA.ravel(), r.bi, desc="model on the truth grid", **r.sampling())
+    mtb = B.roi_brf(r.tm, r.region, TZ.ravel(), TA.ravel(), r.bi, **r.sampling())
     r.timings["model_on_truth_grid_s"] = time.perf_counter() - t
     return tzc, tac, tpb, mtb
 
@@ -280,7 +281,7 @@ def _sample_brf(r: _BRFRun) -> list[B.FrameObservation]:
     if r.scene is not None:
         t = time.perf_counter()
         obs = B.frame_observations(r.tm, r.region, r.scene, backend=r.opts.backend, progress=r.opts.progress,
-                                   min_alpha=r.opts.min_alpha, sun_deg=r.sun)
+                                   min_alpha=r.opts.min_alpha, sun_deg=r.sun, diffuse_fraction=r.sky)
         r.timings["observations_s"] = time.perf_counter() - t
     near = _plane_observations(r, obs)
     truth_curve = _principal_plane_truth(r, s, pp) if r.do_truth else (None, None)
@@ -368,7 +369,8 @@ def _start(run: str | Path, opts: BRFOptions, out: str | Path | None,
         check_truth_spp(sc.root, opts.truth.spp, field="--truth-spp")
     out = Path(out) if out is not None else run_folder(Path(run)) / "analysis" / f"brf_{safe_name(spec.name)}"
     prepare_output_dir(out, "brf.json", opts.overwrite, tm.scene_root)
-    return spec, _BRFRun(tm, opts, out, bi, sc, do_truth, warn, sun)
+    sky = sc.diffuse_fraction if opts.scene is not None else None    # another flight's sky, with its sun
+    return spec, _BRFRun(tm, opts, out, bi, sc, do_truth, warn, sun, sky)
 
 
 def _brf_sun(tm: TrainedModel, scene: Scene | None, opts: BRFOptions) -> tuple[float, float]:

@@ -26,7 +26,7 @@ from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles,
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
-from brfgs.data.sky import read_diffuse_fraction
+from brfgs.data.sky import diffuse_fraction_value, read_diffuse_fraction
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
 from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
@@ -52,6 +52,7 @@ class Frame:
     sun_azimuth_deg: float = float("nan")
     time_utc: str | None = None
     irradiance_scale: float = 1.0           # downwelling irradiance / nominal (sensor or panel): images are divided
+    diffuse_fraction: np.ndarray | None = None  # [B] its own sky share of the irradiance (else the scene's)
 
 
 @dataclass
@@ -134,6 +135,11 @@ class Scene:
     def indices_of(self, split: str) -> list[int]:
         """Frame indices of ``split`` ("train", "validation" or "test")."""
         return [i for i, f in enumerate(self.frames) if f.split == split]
+
+    def frame_diffuse_fraction(self, i: int) -> np.ndarray:  # [B]
+        """The sky share of the irradiance frame ``i`` was taken under: its own, else the scene's."""
+        own = self.frames[i].diffuse_fraction
+        return self.diffuse_fraction if own is None else own
 
     def rings(self) -> dict[str, str]:
         """{frame name: view ring} (ring = view zenith class, e.g. "0", "18", "58"; brfgs.data.splits)."""
@@ -282,6 +288,9 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         if meta["frames"][k].get("irradiance_scale") is not None:
             f.irradiance_scale = V.number(meta["frames"][k]["irradiance_scale"], tf, f"frames[{k}].irradiance_scale",
                                           lo=1e-3, hi=1e3)
+        if meta["frames"][k].get("diffuse_fraction") is not None:
+            f.diffuse_fraction = diffuse_fraction_value(meta["frames"][k]["diffuse_fraction"], tf,
+                                                        f"frames[{k}].diffuse_fraction", len(wl_all))[band_idx]
     if split_rule not in SPLIT_RULES:
         raise UserError(f"split rule must be one of {SPLIT_RULES}, got {split_rule!r}", field="split_rule")
     assign_split(frames, split_seed, split_rule, validation)

@@ -39,6 +39,8 @@ class SceneSummary:
     sigma_source: str
     diffuse_fraction_source: str = "clear-sky default"
     diffuse_fraction: list[float] = field(default_factory=list)  # [B] sky share of the irradiance
+    own_sky_frames: int = 0                     # frames with their own diffuse fraction (merged flights)
+    own_sky_range: tuple[float, float] | None = None  # the smallest and largest of those frames' fractions
     wavelengths_nm: list[float] = field(default_factory=list)
     sigma: list[float] = field(default_factory=list)
     mean_reflectance: list[float] = field(default_factory=list)
@@ -87,6 +89,7 @@ def summarize(scene: Scene, progress: bool = True) -> SceneSummary:
         nearest_hotspot_deg=float(phase.min()), nearest_specular_deg=float(to_spec.min()),
         sigma_source=scene.dark_sigma_source, wavelengths_nm=scene.wavelengths_nm.tolist(),
         diffuse_fraction_source=scene.diffuse_fraction_source, diffuse_fraction=scene.diffuse_fraction.tolist(),
+        **_own_skies(scene),
         sigma=sigma.tolist(), mean_reflectance=mean.tolist(), snr=snr.tolist(),
         invalid_pixels=dict(scene.invalid_counts), bright_pixels=dict(scene.bright_counts), rings=_ring_counts(scene),
         nearest_train_view_deg=scene.nearest_train_view_deg(), ring_spacing_deg=_ring_spacing(scene, views),
@@ -135,6 +138,14 @@ def _flight(scene: Scene) -> dict:
             "irradiance_scale_range": [float(min(scales)), float(max(scales))],
             "frames_resampled": len(own), "distorted": sum(any(c.dist) for c in own),
             "origin": scene.origin.to_json() if scene.origin else None, "crs": scene.crs}
+
+
+def _own_skies(scene) -> dict:
+    """The number of frames with their own diffuse fraction and the range of their values."""
+    own = [f.diffuse_fraction for f in scene.frames if f.diffuse_fraction is not None]
+    if not own:
+        return {}
+    return {"own_sky_frames": len(own), "own_sky_range": (float(np.min(own)), float(np.max(own)))}
 
 
 def _ring_counts(scene: Scene) -> dict[str, list[int]]:
@@ -186,7 +197,9 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
         f"(nearest view to hotspot {s.nearest_hotspot_deg:.1f} deg, to specular {s.nearest_specular_deg:.1f} deg)",
         f"noise sigma      from {s.sigma_source}",
         f"diffuse fraction {min(s.diffuse_fraction):.3f}-{max(s.diffuse_fraction):.3f} of the irradiance from the sky "
-        f"({s.diffuse_fraction_source}; how dark shadows are with brfgs train --shadows)",
+        f"({s.diffuse_fraction_source}; how dark shadows are with brfgs train --shadows)"
+        + (f"; {s.own_sky_frames} frame(s) with their own, {s.own_sky_range[0]:.3f}-{s.own_sky_range[1]:.3f}"
+           if s.own_sky_frames else ""),
     ]
     lines += _flight_lines(s.flight)
     n_bad = sum(s.invalid_pixels.values())

@@ -10,9 +10,10 @@ angle to the nearest training view, "nearest_train_view_deg"; "observed" = the t
 
 Another flight of the same site (``--scene OTHER`` whose frames are not the model's: another hour,
 day or sun) is rendered from each of its frames' own cameras under each frame's own sun and
-scored the same way; its results go to ``OUT/evaluate/<OTHER folder>-sun-scene/`` so that the
-run's own metrics stay. ``sun="model"`` renders every view under the sun the model was trained
-under instead (what the model predicts without relighting), into ``...-sun-model/``.
+scored the same way (a model trained with shadows lit by each frame's sky, its diffuse fraction); its
+results go to ``OUT/evaluate/<OTHER folder>-sun-scene/`` so that the run's own metrics stay.
+``sun="model"`` renders every view under the sun (and sky) the model was trained under instead (what
+the model predicts without relighting), into ``...-sun-model/``.
 """
 
 from __future__ import annotations
@@ -83,6 +84,12 @@ def _view(lm: TrainedModel, scene, i: int, other: bool, sun: str):
     return (cam, *lm.frame_sun(i)) if not other else (cam, float(f.sun_zenith_deg), float(f.sun_azimuth_deg))
 
 
+def _sky(scene, i: int, sun: str):
+    """The diffuse fraction [B] to light frame ``i`` of a model trained with shadows: the frame's own sky
+    (its flight's), or for ``sun="model"`` the model's (None)."""
+    return None if sun == "model" else scene.frame_diffuse_fraction(i)
+
+
 def _references(scene, i: int) -> dict:
     """{"observed": (cube, valid), "truth": (cube, valid) when the scene has truth} of frame ``i``."""
     obs = scene.load_image(i)
@@ -115,7 +122,8 @@ def _score_view(lm: TrainedModel, scene, i: int, backend: str, out: Path | None,
     another flight when ``other``); with ``out``, the CIR comparison PNGs and the ENVI render."""
     name = scene.frames[i].name
     cam, sun_z, sun_a = _view(lm, scene, i, other, sun)          # a held-out view under its own sun
-    r = render(lm, cam, sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend)
+    r = render(lm, cam, sun_zenith_deg=sun_z, sun_azimuth_deg=sun_a, backend=backend,
+               diffuse_fraction=_sky(scene, i, sun))
     scores, materials = {}, None
     for against, (ref, ok) in _references(scene, i).items():
         ref_cir = cir_composite(ref, lm.cir_indices, lm.cir_scale)

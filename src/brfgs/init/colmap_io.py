@@ -7,7 +7,7 @@ folder of hyperspectral cubes whose file stems are the COLMAP image names' stems
 know: ``wavelengths_nm`` (else read by the scene reader's checks from the cubes), ``fwhm_nm``,
 ``sun_zenith_deg``/``sun_azimuth_deg``, optionally ``origin``/``crs``, ``dark_frames``/``dark_sigma``, ``diffuse_fraction``,
 per-image ``frames`` ({image stem: {"time": ..., "sun_zenith_deg": ..., "sun_azimuth_deg": ...,
-"irradiance_scale": ..., "split": ...}}), and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
+"irradiance_scale": ..., "diffuse_fraction": ..., "split": ...}}), and how COLMAP's arbitrary frame maps to the scene's ENU metres: ``enu_from_colmap`` (a 4 × 4
 similarity) or ``camera_positions_enu`` ({image stem: [x, y, z]} for at least three images, aligned
 by pycolmap's ``estimate_sim3d``); without either the COLMAP frame is taken as ENU metres.
 
@@ -144,7 +144,7 @@ def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: P
         f"pycolmap.estimate_sim3d on {len(pairs)} camera positions"
 
 
-_FRAME_KEYS = ("time", "sun_zenith_deg", "sun_azimuth_deg", "irradiance_scale", "split")
+_FRAME_KEYS = ("time", "sun_zenith_deg", "sun_azimuth_deg", "irradiance_scale", "diffuse_fraction", "split")
 
 
 def _frame_extras(sidecar: dict, stem: str, where: Path) -> dict:

@@ -74,11 +74,14 @@ def cameras_from_description(desc: dict) -> list[Camera]:
 
 
 def _frame_sun(f) -> dict:
-    """A frame's own sun (brfgs.data.sun) for the model file, when the frame has one."""
+    """A frame's own sun (brfgs.data.sun) and sky share (diffuse fraction) for the model file, when the
+    frame has them."""
+    own = getattr(f, "diffuse_fraction", None)
+    out = {} if own is None else {"diffuse_fraction": [float(v) for v in own]}
     z = getattr(f, "sun_zenith_deg", float("nan"))
     if not np.isfinite(z):
-        return {}
-    out = {"sun_zenith_deg": float(z), "sun_azimuth_deg": float(f.sun_azimuth_deg)}
+        return out
+    out.update(sun_zenith_deg=float(z), sun_azimuth_deg=float(f.sun_azimuth_deg))
     return {**out, "time_utc": f.time_utc} if getattr(f, "time_utc", None) else out
 
 

@@ -38,10 +38,7 @@ def _check_scene(scene, path: Path) -> None:
     _check(_number(scene.get("sun_zenith_deg")) and 0 <= scene["sun_zenith_deg"] < 90,
            "expected a sun zenith in [0, 90) degrees", path, "scene.sun_zenith_deg")
     _check(_number(scene.get("sun_azimuth_deg")), "expected a finite sun azimuth (deg)", path, "scene.sun_azimuth_deg")
-    df = scene.get("diffuse_fraction")
-    _check(df is None or (isinstance(df, list) and len(df) == len(wl)
-                          and all(_number(v) and 0 <= v <= MAX_DIFFUSE_FRACTION for v in df)),
-           f"expected one diffuse fraction in [0, {MAX_DIFFUSE_FRACTION}] per band", path, "scene.diffuse_fraction")
+    _check_diffuse(scene.get("diffuse_fraction"), len(wl), path, "scene.diffuse_fraction")
     intr = scene.get("intrinsics")
     _check(isinstance(intr, dict) and all(_number(intr.get(k)) for k in INTRINSIC_KEYS)
            and intr["fl_x"] > 0 and intr["fl_y"] > 0 and int(intr["w"]) >= 1 and int(intr["h"]) >= 1,
@@ -53,6 +50,13 @@ def _check_scene(scene, path: Path) -> None:
             and len(fr["c2w"]) == 4 and all(isinstance(r, list) and len(r) == 4 and all(_number(x) for x in r)
                                             for r in fr["c2w"])
         _check(ok, "expected {name, c2w: 4x4 finite numbers}", path, f"scene.frames[{k}]")
+        _check_diffuse(fr.get("diffuse_fraction"), len(wl), path, f"scene.frames[{k}].diffuse_fraction")
+
+
+def _check_diffuse(df, n_bands: int, path: Path, field: str) -> None:
+    _check(df is None or (isinstance(df, list) and len(df) == n_bands
+                          and all(_number(v) and 0 <= v <= MAX_DIFFUSE_FRACTION for v in df)),
+           f"expected one diffuse fraction in [0, {MAX_DIFFUSE_FRACTION}] per band", path, field)
 
 
 def check_metadata(meta: dict, path: Path) -> None:

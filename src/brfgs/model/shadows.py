@@ -130,10 +130,12 @@ def gaussian_sun_visibility(model, sun_zenith_deg: float, sun_azimuth_deg: float
                                backend)
 
 
-def scene_diffuse_fraction(scene: dict) -> Tensor:  # [B] float32
-    """f_b of a scene description (:func:`brfgs.model.camera.scene_description`): its
-    ``diffuse_fraction``, else the clear-sky default of :mod:`brfgs.data.sky`."""
-    f = scene.get("diffuse_fraction")
+def scene_diffuse_fraction(scene: dict, frame: int | None = None) -> Tensor:  # [B] float32
+    """f_b of a scene description (:func:`brfgs.model.camera.scene_description`): frame ``frame``'s own
+    ``diffuse_fraction`` when given and it has one, else the scene's, else the clear-sky default of
+    :mod:`brfgs.data.sky`."""
+    f = scene["frames"][frame].get("diffuse_fraction") if frame is not None else None
+    f = scene.get("diffuse_fraction") if f is None else f
     if f is None:
         f = clear_sky_diffuse_fraction(np.asarray(scene["wavelengths_nm"], float))
     return torch.as_tensor(np.asarray(f, np.float64), dtype=torch.float32)

@@ -88,20 +88,31 @@ def _unit_normals(normal: Tensor | None) -> np.ndarray | None:
     return np.where(nn > 1e-8, n / np.maximum(nn, 1e-12), 0.0).astype(np.float32)
 
 
+def sky_share(model: TrainedModel, diffuse_fraction=None) -> Tensor:  # [B] float32
+    """f_b to light a shadowed model's spectra with: ``diffuse_fraction`` (one number or one per band:
+    the sky of the frame rendered, e.g. another flight's) or the model's own."""
+    if diffuse_fraction is None:
+        return model.diffuse_fraction
+    f = torch.as_tensor(np.asarray(diffuse_fraction, np.float64), dtype=torch.float32)
+    return f.expand(len(model.wavelengths_nm)).contiguous() if f.ndim == 0 else f
+
+
 def spectral_features(model: TrainedModel, omega_i: Tensor, order: str | None = None,
-                      backend: str = "auto") -> FeaturesFn:
+                      backend: str = "auto", diffuse_fraction=None) -> FeaturesFn:
     """Per-Gaussian features whose rendering gives the model's spectra for the sun ω_i [3]:
     latents [n, d] (decode order "pixel") or decoded spectra [n, B] ("gaussian", eq. 13). A model
     trained with shadows adds each Gaussian's direct-sun visibility V as a last channel (order
-    "pixel") or multiplies its spectrum by the illumination (1 − f_b) V + f_b ("gaussian")."""
+    "pixel") or multiplies its spectrum by the illumination (1 − f_b) V + f_b ("gaussian"; f_b
+    :func:`sky_share`)."""
     order = order or model.render_settings.decode_order
     vis = model.sun_visibility_toward(omega_i, backend) if model.shadowed else None  # [N]
+    f_b = sky_share(model, diffuse_fraction) if model.shadowed else None  # [B]
 
     def features(idx: Tensor, omega_o: Tensor) -> Tensor:
         lat = model.gaussian_latent(omega_i, omega_o, idx)  # [n, d]
         if order == "gaussian":
             spec = decode_image(model.decoder, lat)  # [n, B]
-            return spec if vis is None else spec * sun_sky_light(model.diffuse_fraction, vis[idx].to(spec.dtype))
+            return spec if vis is None else spec * sun_sky_light(f_b, vis[idx].to(spec.dtype))
         return lat if vis is None else torch.cat([lat, vis[idx, None].to(lat.dtype)], 1)
 
     return features
@@ -116,24 +127,27 @@ def split_light(model: TrainedModel, image: Tensor, alpha: Tensor) -> tuple[Tens
 
 
 @torch.no_grad()
-def pixel_spectra(model: TrainedModel, image: Tensor, alpha: Tensor, order: str | None = None) -> np.ndarray:
+def pixel_spectra(model: TrainedModel, image: Tensor, alpha: Tensor, order: str | None = None,
+                  diffuse_fraction=None) -> np.ndarray:
     """Reflectance [..., B] of rendered pixels ``image`` [..., C] (premultiplied features of
     :func:`spectral_features`) with coverage ``alpha`` [...]: the background composited, then
-    decoded per pixel and lit (order "pixel"), or the decoded background spectrum composited ("gaussian")."""
+    decoded per pixel and lit under the sky ``diffuse_fraction`` (:func:`sky_share`; order "pixel"),
+    or the decoded background spectrum composited ("gaussian")."""
     order = order or model.render_settings.decode_order
     bg = model.bg_latent
     if order == "gaussian":
         bg_spec = None if bg is None else decode_image(model.decoder, bg.to(image.dtype)[None])[0]  # [B]
         return composite_background(image, alpha, bg_spec).numpy().astype(np.float32)
     lat, vis = split_light(model, image, alpha)
-    return _lit(model, _decode_hits(model, composite_background(lat, alpha, bg), alpha), vis)
+    return _lit(model, _decode_hits(model, composite_background(lat, alpha, bg), alpha), vis, diffuse_fraction)
 
 
-def _lit(model: TrainedModel, cube: np.ndarray, vis: Tensor | None) -> np.ndarray:
-    """``cube`` [..., B] times the sun and sky illumination of the pixels' visibility ``vis`` [...] (None: as is)."""
+def _lit(model: TrainedModel, cube: np.ndarray, vis: Tensor | None, diffuse_fraction=None) -> np.ndarray:
+    """``cube`` [..., B] times the sun and sky illumination of the pixels' visibility ``vis`` [...] (None: as is)
+    under the sky ``diffuse_fraction`` (:func:`sky_share`)."""
     if vis is None:
         return cube
-    cube *= sun_sky_light(model.diffuse_fraction, vis.float()).numpy()
+    cube *= sun_sky_light(sky_share(model, diffuse_fraction), vis.float()).numpy()
     return cube
 
 
@@ -164,6 +178,7 @@ def render(
     cull: bool = True,
     backend: str = "auto",
     decode_order: str | None = None,
+    diffuse_fraction=None,
 ) -> RenderedView:
     """Render ``model`` from ``cam`` under a sun (default: the acquisition's).
 
@@ -172,7 +187,9 @@ def render(
     ``decode_order``: "pixel" | "gaussian", see the module docstring) and the CIR composite
     formed; the CIR variant renders its CIR colours directly. With ``features(idx, omega_o) -> [n, C]``
     any per-Gaussian quantity (kernel contributions, NBAR latents, ...) is rasterized instead
-    and returned raw in ``image``. ``cull`` drops Gaussians that cannot touch the image first
+    and returned raw in ``image``. A model trained with shadows is lit under the sky
+    ``diffuse_fraction`` (one number or one per band: e.g. another flight's frame; default the
+    model's). ``cull`` drops Gaussians that cannot touch the image first
     (same image, less work). A model with a linear spectral basis blends latents in either order
     (the same spectra, :class:`brfgs.model.trained.RenderSettings`).
     """
@@ -186,7 +203,8 @@ def render(
         order = "pixel"  # affine decoding: blending latents gives the spectra of blending decoded Gaussians
     by_gaussian = not custom and decode and order == "gaussian"
     if not custom:
-        features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel", backend) \
+        features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel", backend,
+                                     diffuse_fraction) \
             if model.spectral else (lambda idx, omega_o: model.gaussian_latent(omega_i, omega_o, idx))
     out = _rasterize_subset(model, cam, features, normals, cull, backend)
     t1 = time.perf_counter()
@@ -200,7 +218,7 @@ def render(
         latent = composite_background(rv.image, out.alpha, model.bg_latent)  # [H, W, d]
         rv.latent = latent.numpy().astype(np.float32, copy=False)  # a view of the float32 planes: no copy
         if decode:
-            rv.cube = _lit(model, _decode_hits(model, latent, out.alpha), vis)
+            rv.cube = _lit(model, _decode_hits(model, latent, out.alpha), vis, diffuse_fraction)
             rv.cir = cir_composite(rv.cube, model.cir_indices, model.cir_scale)
     elif not custom:  # CIR variant: SH colours on the CIR composite
         rv.cir = composite_background(out.image, out.alpha, model.extra.get("bg_colors")).clamp(0, 1).numpy()

@@ -173,12 +173,12 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
 @torch.no_grad()
 def view_light(state: TrainState, i: int, backend: str = "auto") -> Tensor:  # [H, W, B]
     """The sun and sky illumination (1 − f_b) V + f_b of training view ``i``'s pixels, V the
-    Gaussians' direct-sun visibility under its sun blended by the view (the background lit)."""
+    Gaussians' direct-sun visibility under its sun blended by the view (the background lit), f_b its sky's."""
     g, cam = state.gaussians, state.cameras[i]
     out = rasterize_splats(g.means.detach(), g.quats.detach(), g.scales.detach(), g.opacities.detach(),
                            state.sun_visibility(i)[:, None], cam, backend, state.cfg.antialias,
                            supersample=state.cfg.supersample)
-    return sun_sky_light(state.diffuse_fraction, pixel_visibility(out.image[..., 0], out.alpha))
+    return sun_sky_light(state.diffuse_fraction(i), pixel_visibility(out.image[..., 0], out.alpha))
 
 
 def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -> None:

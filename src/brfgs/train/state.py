@@ -60,7 +60,7 @@ class TrainState:
         self._cameras: list[Camera] | None = None
         self.dense_depth: DenseDepth | None = None  # the dense depth maps (option lambda_dense_depth)
         self._visibility: dict[tuple, Tensor] = {}  # option shadows: sun -> V [N] of the frozen geometry
-        self._diffuse: tuple[dict, Tensor] | None = None  # option shadows: (scene description, f_b [B])
+        self._diffuse: tuple[dict, dict] | None = None  # option shadows: (scene description, {frame: f_b [B]})
 
     # -- derived -----------------------------------------------------------------------
     @property
@@ -100,14 +100,16 @@ class TrainState:
         """Forget the sun visibilities of the geometry before (a new phase or a loaded checkpoint)."""
         self._visibility = {}
 
-    @property
-    def diffuse_fraction(self) -> Tensor:  # [B]
-        """f_b: the scene's sky share of the irradiance per band (else the clear-sky default), made once
-        per scene description (every stage-2 step reads it)."""
+    def diffuse_fraction(self, i: int) -> Tensor:  # [B]
+        """f_b of training frame ``i``: its own sky share of the irradiance per band, else the scene's,
+        else the clear-sky default; made once per frame and scene description (every stage-2 step reads it)."""
         sc = self.meta["scene"]
         if self._diffuse is None or self._diffuse[0] is not sc:
-            self._diffuse = (sc, scene_diffuse_fraction(sc))
-        return self._diffuse[1]
+            self._diffuse = (sc, {})
+        cache = self._diffuse[1]
+        if i not in cache:
+            cache[i] = scene_diffuse_fraction(sc, i)
+        return cache[i]
 
     def stage1_bands(self) -> list[int]:
         """Band indices stage 1 fits (runs made before stage1_cir_bands existed: the selected bands)."""

@@ -287,7 +287,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
     if by_gaussian:
         feats, subset = _decoded_features(state, phase, feats, batch.cam)
         if vis is not None:  # each Gaussian's spectrum under its own light
-            feats = feats * sun_sky_light(state.diffuse_fraction, vis if subset is None else vis[subset])
+            feats = feats * sun_sky_light(state.diffuse_fraction(batch.index), vis if subset is None else vis[subset])
     elif vis is not None:  # the visibility as a last channel, blended like the latents
         feats = torch.cat([feats, vis[:, None].to(feats.dtype)], -1)
     n_feat = feats.shape[-1]
@@ -310,7 +310,7 @@ def forward(state: TrainState, cfg: TrainConfig, phase: Phase, batch: Batch, pha
         light = None
         if vis is not None:  # the pixel's blended visibility, the background lit
             vis_pix = pixel_visibility(image[..., -1], out.alpha)  # [H, W]
-            image, light = image[..., :-1], sun_sky_light(state.diffuse_fraction, vis_pix)
+            image, light = image[..., :-1], sun_sky_light(state.diffuse_fraction(batch.index), vis_pix)
         lat = composite_background(image, out.alpha, state.extra["bg_latent"])
         loss, psnr = _spectral_loss(state, cfg, phase, lat, batch, greg, state.gen if gen is None else gen, light)
     return StepResult(loss, psnr, out)

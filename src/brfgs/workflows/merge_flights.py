@@ -3,7 +3,8 @@
 Flights of one site at different hours or days (different suns) train one model when their frames
 are in one scene, each under its own sun: the kernels then see the site under several suns. Each
 frame of each flight becomes ``<flight>_<name>`` in OUT, with its pose, camera fields, time,
-irradiance scale, its sun written out (the frame's own, else its flight's) and its flight's split
+irradiance scale, its sun written out (the frame's own, else its flight's), its sky's diffuse fraction
+written out likewise when the flights' differ, and its flight's split
 (read as training reads it, ``split_seed``), so that every flight keeps its own held-out views. The
 cubes, the dark frames of the first flight and the truth of simulated flights are hard-linked (copied
 across file systems).
@@ -84,17 +85,18 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     scenes = [read_scene(r, split_seed=split_seed) for r in roots]
     for r, meta, sc in zip(roots[1:], metas[1:], scenes[1:]):
         _check_same(metas[0], meta, r / "transforms.json", scenes[0].wavelengths_nm, sc.wavelengths_nm)
-        if not np.allclose(sc.diffuse_fraction, scenes[0].diffuse_fraction, rtol=0, atol=1e-6):
-            raise UserError("the flights' diffuse fractions differ (one merged scene has one sky share per band)",
-                            file=r / "transforms.json", field="diffuse_fraction")
+    skies = [sc.frame_diffuse_fraction(i) for sc in scenes for i in range(len(sc.frames))]
+    per_frame_sky = not all(np.allclose(f, skies[0], rtol=0, atol=1e-6) for f in skies)
     merged = {k: v for k, v in metas[0].items() if k not in ("frames", "sun_zenith_deg", "sun_azimuth_deg",
                                                                 "dark_frames", "flights")}
     merged["flights"] = []
     frames = []
     for name, root, meta, sc in zip(_flight_names(roots), roots, metas, scenes):
         merged["flights"].append({"name": name, "source": str(root.resolve()), "frames": len(sc.frames)})
-        for fm, f in zip(meta["frames"], sc.frames):
+        for i, (fm, f) in enumerate(zip(meta["frames"], sc.frames)):
             frames.append(_merged_frame(fm, f, root, out, name))
+            if per_frame_sky:   # flights under other skies: each frame keeps its own
+                frames[-1]["diffuse_fraction"] = [round(float(v), 6) for v in sc.frame_diffuse_fraction(i)]
     merged["frames"] = frames
     darks = metas[0].get("dark_frames") or []
     for rel in darks:
