@@ -81,11 +81,43 @@ def test_sun_sky_light_limits():
     np.testing.assert_allclose(out[1, 0].numpy(), [0.5, 0.55, 0.75])
 
 
-def test_clear_sky_default_values():
-    wl = np.array([350.0, 450.0, 550.0, 850.0, 1000.0])
-    got = clear_sky_diffuse_fraction(wl)
-    np.testing.assert_allclose(got, 0.1 * (550.0 / wl) ** 2.5, rtol=1e-12)
-    assert got[2] == pytest.approx(0.1) and np.all(np.diff(got) < 0)
+def test_clear_sky_default_follows_the_sun_the_wavelength_and_the_altitude():
+    """SPECTRL2's clear sky: a bluer sky share (Rayleigh scattering) that grows as the sun sinks and
+    shrinks with altitude (less air above); 0.1-0.2 at 550 nm for a sun at 20-55°; all in [0, 0.9]."""
+    wl = np.array([400.0, 450.0, 550.0, 681.0, 860.0, 1000.0])
+    by_zenith = np.stack([clear_sky_diffuse_fraction(wl, z) for z in (0.0, 20.0, 35.0, 55.0, 70.0, 85.0)])
+    assert np.all(np.diff(by_zenith[:-1], axis=1) < 0) and np.all(np.diff(by_zenith, axis=0) > 0)
+    assert 0.1 < by_zenith[1, 2] < by_zenith[3, 2] < 0.2 and 0.03 < by_zenith[2, 4] < 0.1
+    assert by_zenith.min() > 0 and by_zenith.max() <= 0.9
+    np.testing.assert_array_equal(clear_sky_diffuse_fraction(wl, 89.0), by_zenith[-1])   # clipped at 85°
+    assert np.all(clear_sky_diffuse_fraction(wl, 35.0, altitude_m=2500.0) < by_zenith[2])
+
+
+def test_without_a_field_each_sun_has_its_own_sky():
+    """A model whose scene gives no diffuse fraction lights its shadows with the clear-sky default of the
+    sun it is rendered under; a scene without the field gives each frame the default of its own sun."""
+    tm, _, _ = _lit_roof(0.2)
+    tm.scene = {k: v for k, v in tm.scene.items() if k != "diffuse_fraction"}
+    _, cam = _nadir()
+    wl = np.asarray(tm.scene["wavelengths_nm"], float)
+    for z in (30.0, 65.0):
+        rv = render(tm, cam, sun_zenith_deg=z, sun_azimuth_deg=90.0, backend="torch")
+        f = clear_sky_diffuse_fraction(wl, z)
+        ref = tm.decode(rv.latent).astype(np.float64) * ((1.0 - f) * rv.sun_lit[..., None] + f)
+        np.testing.assert_allclose(rv.cube, ref, rtol=2e-4, atol=2e-5)
+    assert np.all(tm.diffuse_fraction(65.0).numpy() > tm.diffuse_fraction(30.0).numpy())
+
+
+def test_a_scene_without_the_field_gives_each_frame_its_suns_sky(tmp_path):
+    root = make_scene(tmp_path / "s")
+    tf = root / "transforms.json"
+    meta = json.loads(tf.read_text())
+    meta["frames"][2].update(sun_zenith_deg=60.0, sun_azimuth_deg=150.0)
+    tf.write_text(json.dumps(meta))
+    sc = read_scene(root)
+    np.testing.assert_allclose(sc.diffuse_fraction, clear_sky_diffuse_fraction(sc.wavelengths_nm, sc.sun_zenith_deg))
+    np.testing.assert_allclose(sc.frame_diffuse_fraction(2), clear_sky_diffuse_fraction(sc.wavelengths_nm, 60.0))
+    assert np.all(sc.frame_diffuse_fraction(2) > sc.frame_diffuse_fraction(0))
 
 
 def test_the_field_is_read_and_checked(tmp_path):

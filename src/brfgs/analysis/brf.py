@@ -47,7 +47,7 @@ from brfgs.data.cube_io import envi_image_path
 from brfgs.data.scene import Scene
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
-from brfgs.model.view import pixel_spectra, spectral_features
+from brfgs.model.view import pixel_spectra, sky_share, spectral_features
 
 __all__ = [
     "MIN_ALPHA",
@@ -116,17 +116,18 @@ def roi_mean_from_view(
     Spectra in the model's decode order (:func:`brfgs.model.view.pixel_spectra`); with order
     "pixel" only the ROI pixels are decoded (the decoder is nonlinear: spectra are decoded per
     pixel and then averaged, as a sensor would average reflectance). A model trained with shadows is
-    lit under the sky ``diffuse_fraction`` (default its own; :func:`brfgs.model.view.sky_share`).
+    lit under the sky ``diffuse_fraction`` (default its own for this sun; :func:`brfgs.model.view.sky_share`).
     """
+    sky = sky_share(tm, diffuse_fraction, omega_i) if tm.shadowed else None  # [B] this sun's
     rv = render(tm, camera_from_intrinsics(c2w, intr), features=spectral_features(tm, omega_i, backend=backend,
-                diffuse_fraction=diffuse_fraction), backend=backend)
+                diffuse_fraction=sky), backend=backend)
     mask = roi_pixels(roi, rv.depth, rv.alpha, c2w, intr, min_alpha=min_alpha)
     n = int(mask.sum())
     if n == 0:
         empty = np.full(len(tm.wavelengths_nm), np.nan, np.float32)
         return (empty, 0, mask, np.zeros((0, len(empty)), np.float32)) if return_pixels else (empty, 0, mask)
     m = torch.as_tensor(mask)
-    spec = pixel_spectra(tm, rv.image[m], torch.as_tensor(rv.alpha)[m], diffuse_fraction=diffuse_fraction)  # [n, B]
+    spec = pixel_spectra(tm, rv.image[m], torch.as_tensor(rv.alpha)[m], diffuse_fraction=sky)  # [n, B]
     if return_pixels:
         return spec.mean(0), n, mask, spec
     return spec.mean(0), n, mask

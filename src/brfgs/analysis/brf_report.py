@@ -369,7 +369,7 @@ def _start(run: str | Path, opts: BRFOptions, out: str | Path | None,
         check_truth_spp(sc.root, opts.truth.spp, field="--truth-spp")
     out = Path(out) if out is not None else run_folder(Path(run)) / "analysis" / f"brf_{safe_name(spec.name)}"
     prepare_output_dir(out, "brf.json", opts.overwrite, tm.scene_root)
-    sky = sc.diffuse_fraction if opts.scene is not None else None    # another flight's sky, with its sun
+    sky = sc.sky_at(sun[0]) if opts.scene is not None else None    # another flight's sky at the BRF's sun
     return spec, _BRFRun(tm, opts, out, bi, sc, do_truth, warn, sun, sky)
 
 

@@ -26,7 +26,7 @@ from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles,
 from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
 from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
-from brfgs.data.sky import diffuse_fraction_value, read_diffuse_fraction
+from brfgs.data.sky import clear_sky_diffuse_fraction, read_diffuse_fraction, read_frame_diffuse_fraction
 from brfgs.data.sun import frame_suns
 from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
 from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
@@ -84,7 +84,7 @@ class Scene:
     bright_counts: dict[str, int] = field(default_factory=dict)    # pixels above value_range per frame (kept)
     origin: Origin | None = None            # the ENU frame on the Earth (brfgs.data.georef), if given
     crs: str | None = None                  # map CRS of products (default: the origin's UTM zone)
-    diffuse_fraction: np.ndarray | None = None   # [B] sky share of the downwelling irradiance (brfgs.data.sky)
+    diffuse_fraction: np.ndarray | None = None   # [B] sky share of the irradiance (brfgs.data.sky; default: at the sun)
     diffuse_fraction_source: str = "clear-sky default"
 
     # ----- geometry -------------------------------------------------------------------------------
@@ -136,10 +136,16 @@ class Scene:
         """Frame indices of ``split`` ("train", "validation" or "test")."""
         return [i for i, f in enumerate(self.frames) if f.split == split]
 
+    def sky_at(self, sun_zenith_deg: float) -> np.ndarray:  # [B]
+        """The scene's diffuse fraction (its field), else the clear-sky default for that sun (brfgs.data.sky)."""
+        given = self.diffuse_fraction_source != "clear-sky default"
+        return self.diffuse_fraction if given else clear_sky_diffuse_fraction(
+            self.wavelengths_nm, sun_zenith_deg, self.origin.altitude_m if self.origin else 0.0)
+
     def frame_diffuse_fraction(self, i: int) -> np.ndarray:  # [B]
-        """The sky share of the irradiance frame ``i`` was taken under: its own, else the scene's."""
+        """The sky share of the irradiance frame ``i`` was taken under: its own, else :meth:`sky_at` its sun."""
         own = self.frames[i].diffuse_fraction
-        return self.diffuse_fraction if own is None else own
+        return self.sky_at(self.frames[i].sun_zenith_deg) if own is None else own
 
     def rings(self) -> dict[str, str]:
         """{frame name: view ring} (ring = view zenith class, e.g. "0", "18", "58"; brfgs.data.splits)."""
@@ -179,9 +185,9 @@ class Scene:
         return p if p.is_dir() else None
 
     def frame_index(self, name: str) -> int:
-        for i, f in enumerate(self.frames):
-            if f.name == name:
-                return i
+        names = [f.name for f in self.frames]
+        if name in names:
+            return names.index(name)
         raise UserError(f"no frame named {name!r}; frames are {[f.name for f in self.frames][:8]}...",
                         file=self.root / TRANSFORMS, field="frames")
 
@@ -288,9 +294,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         if meta["frames"][k].get("irradiance_scale") is not None:
             f.irradiance_scale = V.number(meta["frames"][k]["irradiance_scale"], tf, f"frames[{k}].irradiance_scale",
                                           lo=1e-3, hi=1e3)
-        if meta["frames"][k].get("diffuse_fraction") is not None:
-            f.diffuse_fraction = diffuse_fraction_value(meta["frames"][k]["diffuse_fraction"], tf,
-                                                        f"frames[{k}].diffuse_fraction", len(wl_all))[band_idx]
+        f.diffuse_fraction = read_frame_diffuse_fraction(meta["frames"][k], k, tf, len(wl_all), band_idx)
     if split_rule not in SPLIT_RULES:
         raise UserError(f"split rule must be one of {SPLIT_RULES}, got {split_rule!r}", field="split_rule")
     assign_split(frames, split_seed, split_rule, validation)
@@ -299,17 +303,15 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
                         field="frames[].split")
 
     sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, (value_range, allow_outside_links))
-    diffuse_all, diffuse_source = read_diffuse_fraction(meta, tf, wl_all)
-    scene = Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
-                  fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
-                  intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
-                  dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
-                  value_range=(float(lo), float(hi)), split_seed=split_seed, split_rule=split_rule,
-                  validation=validation,
-                  full_intrinsics=full_intr, origin=origin, crs=crs,
-                  diffuse_fraction=diffuse_all[band_idx], diffuse_fraction_source=diffuse_source,
-                  _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
-    return scene
+    diffuse_all, diffuse_source = read_diffuse_fraction(meta, tf, wl_all, sun_zen, origin.altitude_m if origin else 0)
+    return Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
+                 fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
+                 intrinsics=intr, sun_zenith_deg=sun_zen, sun_azimuth_deg=sun_az, frames=frames,
+                 dark_sigma=sigma_all[band_idx], dark_sigma_source=source, downscale=downscale, roi=roi,
+                 value_range=(float(lo), float(hi)), split_seed=split_seed, split_rule=split_rule,
+                 validation=validation, full_intrinsics=full_intr, origin=origin, crs=crs,
+                 diffuse_fraction=diffuse_all[band_idx], diffuse_fraction_source=diffuse_source,
+                 _sources=sources, _file_wavelengths=wl_all, allow_outside_links=allow_outside_links)
 
 
 def _load_transforms(root: Path, allow_outside_links: bool = False) -> tuple[Path, dict]:

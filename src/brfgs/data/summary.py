@@ -140,6 +140,17 @@ def _flight(scene: Scene) -> dict:
             "origin": scene.origin.to_json() if scene.origin else None, "crs": scene.crs}
 
 
+def _sky_line(s: SceneSummary) -> str:
+    """The inspect line of the diffuse fraction: its range, where it comes from, frames with their own."""
+    src = s.diffuse_fraction_source
+    if src == "clear-sky default":
+        src += " at the reference sun, each frame at its own"
+    own = (f"; {s.own_sky_frames} frame(s) with their own, {s.own_sky_range[0]:.3f}-{s.own_sky_range[1]:.3f}"
+           if s.own_sky_frames else "")
+    return (f"diffuse fraction {min(s.diffuse_fraction):.3f}-{max(s.diffuse_fraction):.3f} of the irradiance from the "
+            f"sky ({src}; how dark shadows are with brfgs train --shadows){own}")
+
+
 def _own_skies(scene) -> dict:
     """The number of frames with their own diffuse fraction and the range of their values."""
     own = [f.diffuse_fraction for f in scene.frames if f.diffuse_fraction is not None]
@@ -196,10 +207,7 @@ def format_summary(s: SceneSummary, max_band_rows: int = 12) -> str:
         f"phase angle      {s.phase_angle_range_deg[0]:.1f}-{s.phase_angle_range_deg[1]:.1f} deg "
         f"(nearest view to hotspot {s.nearest_hotspot_deg:.1f} deg, to specular {s.nearest_specular_deg:.1f} deg)",
         f"noise sigma      from {s.sigma_source}",
-        f"diffuse fraction {min(s.diffuse_fraction):.3f}-{max(s.diffuse_fraction):.3f} of the irradiance from the sky "
-        f"({s.diffuse_fraction_source}; how dark shadows are with brfgs train --shadows)"
-        + (f"; {s.own_sky_frames} frame(s) with their own, {s.own_sky_range[0]:.3f}-{s.own_sky_range[1]:.3f}"
-           if s.own_sky_frames else ""),
+        _sky_line(s),
     ]
     lines += _flight_lines(s.flight)
     n_bad = sum(s.invalid_pixels.values())

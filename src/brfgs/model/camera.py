@@ -97,8 +97,8 @@ def scene_description(scene, c2w: np.ndarray) -> dict:
         "fwhm_nm": None if scene.fwhm_nm is None else [float(w) for w in scene.fwhm_nm],
         "sun_zenith_deg": float(scene.sun_zenith_deg),
         "sun_azimuth_deg": float(scene.sun_azimuth_deg),
-        **({"diffuse_fraction": [float(v) for v in scene.diffuse_fraction]}
-           if getattr(scene, "diffuse_fraction", None) is not None else {}),
+        **({"diffuse_fraction": [float(v) for v in scene.diffuse_fraction]}     # given; else the default at each sun
+           if getattr(scene, "diffuse_fraction_source", "clear-sky default") != "clear-sky default" else {}),
         **({"origin": scene.origin.to_json(), "crs": scene.crs} if getattr(scene, "origin", None) else {}),
         "intrinsics": {"fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h},
         "downscale": int(getattr(scene, "downscale", 1)),

@@ -130,14 +130,18 @@ def gaussian_sun_visibility(model, sun_zenith_deg: float, sun_azimuth_deg: float
                                backend)
 
 
-def scene_diffuse_fraction(scene: dict, frame: int | None = None) -> Tensor:  # [B] float32
+def scene_diffuse_fraction(scene: dict, frame: int | None = None,
+                           sun_zenith_deg: float | None = None) -> Tensor:  # [B] float32
     """f_b of a scene description (:func:`brfgs.model.camera.scene_description`): frame ``frame``'s own
     ``diffuse_fraction`` when given and it has one, else the scene's, else the clear-sky default of
-    :mod:`brfgs.data.sky`."""
-    f = scene["frames"][frame].get("diffuse_fraction") if frame is not None else None
+    :mod:`brfgs.data.sky` for the sun ``sun_zenith_deg`` (default: the frame's, else the scene's)."""
+    fr = scene["frames"][frame] if frame is not None else {}
+    f = fr.get("diffuse_fraction")
     f = scene.get("diffuse_fraction") if f is None else f
     if f is None:
-        f = clear_sky_diffuse_fraction(np.asarray(scene["wavelengths_nm"], float))
+        z = sun_zenith_deg if sun_zenith_deg is not None else fr.get("sun_zenith_deg", scene["sun_zenith_deg"])
+        alt = (scene.get("origin") or {}).get("altitude_m", 0.0)
+        f = clear_sky_diffuse_fraction(np.asarray(scene["wavelengths_nm"], float), float(z), float(alt))
     return torch.as_tensor(np.asarray(f, np.float64), dtype=torch.float32)
 
 

@@ -172,11 +172,15 @@ class TrainedModel:
         illumination (1 − f_b) V + f_b (:mod:`brfgs.model.shadows`)."""
         return bool(self.config.get("shadows", False)) and self.spectral
 
-    @cached_property
-    def diffuse_fraction(self) -> Tensor:
+    def diffuse_fraction(self, sun_zenith_deg: float | None = None) -> Tensor:  # [B]
         """f_b [B]: the sky share of the downwelling irradiance the model was trained with (the scene's
-        field, else the clear-sky default of :mod:`brfgs.data.sky`)."""
-        return scene_diffuse_fraction(self.scene)
+        field), else the clear-sky default of :mod:`brfgs.data.sky` for the sun (deg; default the
+        acquisition's)."""
+        z = round(float(self.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg), 4)
+        cache = self.__dict__.setdefault("_sky", {})
+        if z not in cache:
+            cache[z] = scene_diffuse_fraction(self.scene, sun_zenith_deg=z)
+        return cache[z]
 
     def sun_visibility(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None,
                        backend: str = "auto") -> Tensor:

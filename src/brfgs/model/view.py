@@ -88,11 +88,13 @@ def _unit_normals(normal: Tensor | None) -> np.ndarray | None:
     return np.where(nn > 1e-8, n / np.maximum(nn, 1e-12), 0.0).astype(np.float32)
 
 
-def sky_share(model: TrainedModel, diffuse_fraction=None) -> Tensor:  # [B] float32
+def sky_share(model: TrainedModel, diffuse_fraction=None, omega_i: Tensor | None = None) -> Tensor:  # [B] float32
     """f_b to light a shadowed model's spectra with: ``diffuse_fraction`` (one number or one per band:
-    the sky of the frame rendered, e.g. another flight's) or the model's own."""
+    the sky of the frame rendered, e.g. another flight's), else the model's own for the sun ω_i [3]
+    (:meth:`TrainedModel.diffuse_fraction`; default the acquisition's sun)."""
     if diffuse_fraction is None:
-        return model.diffuse_fraction
+        z = None if omega_i is None else float(np.degrees(np.arccos(np.clip(float(omega_i[2]), -1.0, 1.0))))
+        return model.diffuse_fraction(z)
     f = torch.as_tensor(np.asarray(diffuse_fraction, np.float64), dtype=torch.float32)
     return f.expand(len(model.wavelengths_nm)).contiguous() if f.ndim == 0 else f
 
@@ -106,7 +108,7 @@ def spectral_features(model: TrainedModel, omega_i: Tensor, order: str | None = 
     :func:`sky_share`)."""
     order = order or model.render_settings.decode_order
     vis = model.sun_visibility_toward(omega_i, backend) if model.shadowed else None  # [N]
-    f_b = sky_share(model, diffuse_fraction) if model.shadowed else None  # [B]
+    f_b = sky_share(model, diffuse_fraction, omega_i) if model.shadowed else None  # [B]
 
     def features(idx: Tensor, omega_o: Tensor) -> Tensor:
         lat = model.gaussian_latent(omega_i, omega_o, idx)  # [n, d]
@@ -131,7 +133,8 @@ def pixel_spectra(model: TrainedModel, image: Tensor, alpha: Tensor, order: str 
                   diffuse_fraction=None) -> np.ndarray:
     """Reflectance [..., B] of rendered pixels ``image`` [..., C] (premultiplied features of
     :func:`spectral_features`) with coverage ``alpha`` [...]: the background composited, then
-    decoded per pixel and lit under the sky ``diffuse_fraction`` (:func:`sky_share`; order "pixel"),
+    decoded per pixel and lit under the sky ``diffuse_fraction`` (order "pixel"; default the model's at its
+    acquisition's sun: pass :func:`sky_share` of the sun the features were rendered for),
     or the decoded background spectrum composited ("gaussian")."""
     order = order or model.render_settings.decode_order
     bg = model.bg_latent
@@ -189,7 +192,7 @@ def render(
     any per-Gaussian quantity (kernel contributions, NBAR latents, ...) is rasterized instead
     and returned raw in ``image``. A model trained with shadows is lit under the sky
     ``diffuse_fraction`` (one number or one per band: e.g. another flight's frame; default the
-    model's). ``cull`` drops Gaussians that cannot touch the image first
+    model's for this sun, :func:`sky_share`). ``cull`` drops Gaussians that cannot touch the image first
     (same image, less work). A model with a linear spectral basis blends latents in either order
     (the same spectra, :class:`brfgs.model.trained.RenderSettings`).
     """
@@ -202,6 +205,8 @@ def render(
     if is_linear(model.decoder):
         order = "pixel"  # affine decoding: blending latents gives the spectra of blending decoded Gaussians
     by_gaussian = not custom and decode and order == "gaussian"
+    if model.shadowed and not custom:  # the sky of this sun (or the one given), for every path below
+        diffuse_fraction = sky_share(model, diffuse_fraction, omega_i)
     if not custom:
         features = spectral_features(model, omega_i, "gaussian" if by_gaussian else "pixel", backend,
                                      diffuse_fraction) \

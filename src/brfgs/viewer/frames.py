@@ -139,7 +139,7 @@ def _spectral_view(tm: TrainedModel, cam, sun: tuple[float, float], bands: list[
     view = render(tm, cam, sun_zenith_deg=sun[0], sun_azimuth_deg=sun[1], decode=False, backend=backend)
     planes = decode_bands(tm.decoder, torch.as_tensor(view.latent), bands)  # [H, W, nb]
     if view.sun_lit is not None:  # a model with shadows: the bands under the sun and sky light
-        planes = planes * sun_sky_light(tm.diffuse_fraction[bands], torch.as_tensor(view.sun_lit))
+        planes = planes * sun_sky_light(tm.diffuse_fraction(sun[0])[bands], torch.as_tensor(view.sun_lit))
     return view, planes.numpy()
 
 

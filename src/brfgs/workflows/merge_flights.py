@@ -4,7 +4,8 @@ Flights of one site at different hours or days (different suns) train one model 
 are in one scene, each under its own sun: the kernels then see the site under several suns. Each
 frame of each flight becomes ``<flight>_<name>`` in OUT, with its pose, camera fields, time,
 irradiance scale, its sun written out (the frame's own, else its flight's), its sky's diffuse fraction
-written out likewise when the flights' differ, and its flight's split
+written out likewise when a flight gives one and they differ (else each frame keeps the clear-sky
+default of its sun), and its flight's split
 (read as training reads it, ``split_seed``), so that every flight keeps its own held-out views. The
 cubes, the dark frames of the first flight and the truth of simulated flights are hard-linked (copied
 across file systems).
@@ -86,7 +87,9 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     for r, meta, sc in zip(roots[1:], metas[1:], scenes[1:]):
         _check_same(metas[0], meta, r / "transforms.json", scenes[0].wavelengths_nm, sc.wavelengths_nm)
     skies = [sc.frame_diffuse_fraction(i) for sc in scenes for i in range(len(sc.frames))]
-    per_frame_sky = not all(np.allclose(f, skies[0], rtol=0, atol=1e-6) for f in skies)
+    given = any(sc.diffuse_fraction_source != "clear-sky default" or any(f.diffuse_fraction is not None
+                                                                         for f in sc.frames) for sc in scenes)
+    per_frame_sky = given and not all(np.allclose(f, skies[0], rtol=0, atol=1e-6) for f in skies)  # else each sun's default
     merged = {k: v for k, v in metas[0].items() if k not in ("frames", "sun_zenith_deg", "sun_azimuth_deg",
                                                                 "dark_frames", "flights")}
     merged["flights"] = []
