@@ -90,6 +90,7 @@ class TrainedModel:
     # (tensor identities and versions, detached tensors) of frozen(); not part of the model
     _frozen: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _visibility: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # sun -> V [N]
+    _sky: dict = field(default_factory=dict, init=False, repr=False, compare=False)  # sun zenith -> f_b [B]
 
     # -- description ----------------------------------------------------------------
     @property
@@ -177,10 +178,9 @@ class TrainedModel:
         field), else the clear-sky default of :mod:`brfgs.data.sky` for the sun (deg; default the
         acquisition's)."""
         z = round(float(self.sun_zenith_deg if sun_zenith_deg is None else sun_zenith_deg), 4)
-        cache = self.__dict__.setdefault("_sky", {})
-        if z not in cache:
-            cache[z] = scene_diffuse_fraction(self.scene, sun_zenith_deg=z)
-        return cache[z]
+        if z not in self._sky:
+            self._sky[z] = scene_diffuse_fraction(self.scene, sun_zenith_deg=z)
+        return self._sky[z]
 
     def sun_visibility(self, sun_zenith_deg: float | None = None, sun_azimuth_deg: float | None = None,
                        backend: str = "auto") -> Tensor:

@@ -18,6 +18,7 @@ Training uses the same pieces (:mod:`brfgs.model.rendering`) with gradients.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -26,6 +27,7 @@ import torch
 from torch import Tensor
 
 from brfgs.brdf.geometry import gaussian_normals, view_directions
+from brfgs.data.angles import angles_from_direction
 from brfgs.data.cir import cir_composite
 from brfgs.model.camera import Camera
 from brfgs.model.rendering import (FeaturesFn, composite_background, decode_image, frustum_subset,
@@ -93,7 +95,7 @@ def sky_share(model: TrainedModel, diffuse_fraction=None, omega_i: Tensor | None
     the sky of the frame rendered, e.g. another flight's), else the model's own for the sun ω_i [3]
     (:meth:`TrainedModel.diffuse_fraction`; default the acquisition's sun)."""
     if diffuse_fraction is None:
-        z = None if omega_i is None else float(np.degrees(np.arccos(np.clip(float(omega_i[2]), -1.0, 1.0))))
+        z = None if omega_i is None else math.degrees(float(angles_from_direction(omega_i.double())[0]))
         return model.diffuse_fraction(z)
     f = torch.as_tensor(np.asarray(diffuse_fraction, np.float64), dtype=torch.float32)
     return f.expand(len(model.wavelengths_nm)).contiguous() if f.ndim == 0 else f

@@ -86,9 +86,9 @@ def merge_flights(out_dir: str | Path, scene_paths: list, split_seed: int = 0) -
     scenes = [read_scene(r, split_seed=split_seed) for r in roots]
     for r, meta, sc in zip(roots[1:], metas[1:], scenes[1:]):
         _check_same(metas[0], meta, r / "transforms.json", scenes[0].wavelengths_nm, sc.wavelengths_nm)
-    skies = [sc.frame_diffuse_fraction(i) for sc in scenes for i in range(len(sc.frames))]
     given = any(sc.diffuse_fraction_source != "clear-sky default" or any(f.diffuse_fraction is not None
                                                                          for f in sc.frames) for sc in scenes)
+    skies = [sc.frame_diffuse_fraction(i) for sc in scenes for i in range(len(sc.frames))] if given else []
     per_frame_sky = given and not all(np.allclose(f, skies[0], rtol=0, atol=1e-6) for f in skies)  # else each sun's default
     merged = {k: v for k, v in metas[0].items() if k not in ("frames", "sun_zenith_deg", "sun_azimuth_deg",
                                                                 "dark_frames", "flights")}
