@@ -206,9 +206,14 @@ def mut_names(rng: random.Random, case: dict) -> Mutation:
 def mut_links(rng: random.Random, case: dict) -> Mutation:
     kind = rng.choice(["cube_inside", "cube_outside", "hard_outside", "flight_link", "truth_dir_outside",
                        "truth_dir_etc", "truth_file_outside", "truth_file_inside", "truth_fifo", "truth_subfolder",
-                       "truth_loop", "transforms_fifo", "dark_outside"])
+                       "truth_loop", "transforms_fifo", "dark_outside", "cube_loop", "truth_file_loop"])
     f = rng.choice([case["A"], case["B"]])
     outside = case["outside"]
+    if kind in ("cube_loop", "truth_file_loop"):
+        p = f / ("images/v1.hdr" if kind == "cube_loop" else "truth/images/v2.img")
+        p.unlink()
+        p.symlink_to(p.name)
+        return Mutation(f"{p.relative_to(f)} a loop of links", "invalid")
     if kind in ("cube_inside", "cube_outside", "truth_file_outside", "truth_file_inside", "dark_outside"):
         rel = {"truth_file_outside": "truth/depth/v1.npy", "truth_file_inside": "truth/depth/v1.npy",
                "dark_outside": "calibration/dark_01.img"}.get(kind, "images/v1.img")
@@ -284,25 +289,20 @@ def mut_flights(rng: random.Random, case: dict) -> Mutation:
 def mut_output(rng: random.Random, case: dict) -> Mutation:
     kind = rng.choice(["dangling", "link_to_empty", "file", "full", "empty", "inside", "new_parents", "long_name"])
     d, out = case["dir"], case["out"]
-    if kind == "dangling":
-        out.symlink_to(d / "nowhere")
-    elif kind == "link_to_empty":
-        (d / "empty").mkdir()
-        out.symlink_to(d / "empty")
+    if kind in ("inside", "new_parents", "long_name"):
+        return {"inside": Mutation("OUT inside a flight", "invalid", out=case["A"] / "merged"),
+                "new_parents": Mutation("OUT below new folders", "valid", out=d / "new" / "deeper" / "out"),
+                "long_name": Mutation("OUT a name of 300 characters", "invalid", out=d / ("o" * 300))}[kind]
+    if kind in ("full", "empty"):
+        out.mkdir()
+        if kind == "empty":
+            return Mutation("OUT an empty folder", "valid")
+        (out / "x.txt").write_text("mine")
     elif kind == "file":
         out.write_text("mine")
-    elif kind == "full":
-        out.mkdir()
-        (out / "x.txt").write_text("mine")
-    elif kind == "empty":
-        out.mkdir()
-        return Mutation("OUT an empty folder", "valid")
-    elif kind == "inside":
-        return Mutation("OUT inside a flight", "invalid", out=case["A"] / "merged")
-    elif kind == "new_parents":
-        return Mutation("OUT below new folders", "valid", out=d / "new" / "deeper" / "out")
     else:
-        return Mutation("OUT a name of 300 characters", "invalid", out=d / ("o" * 300))
+        (d / "empty").mkdir()
+        out.symlink_to(d / ("nowhere" if kind == "dangling" else "empty"))
     return Mutation(f"OUT {kind}", "invalid")
 
 
@@ -321,10 +321,6 @@ MUTATORS = (mut_names, mut_links, mut_flights, mut_output, mut_interrupt, mut_no
 
 
 # ------------------------------------------------------------------------------------------ one case
-def _bytes(path: Path) -> bytes:
-    return path.read_bytes()
-
-
 def merged_problems(out: Path, flights: list[Path]) -> list[str]:
     """What is wrong with a merged scene: it must read, and each frame's cube (header and data) and truth
     files must hold the bytes of its own flight's."""
@@ -345,7 +341,7 @@ def merged_problems(out: Path, flights: list[Path]) -> list[str]:
             pairs += [(out / "truth" / s / f"{frame.name}.npy", flight / "truth" / s / f"{name}.npy")
                       for s in ("depth", "materials", "sun_visibility")]
         for got, want in pairs:
-            if not got.is_file() or _bytes(got) != _bytes(want):
+            if not got.is_file() or got.read_bytes() != want.read_bytes():
                 problems.append(f"{got.relative_to(out)} is not {want}")
     return problems
 
