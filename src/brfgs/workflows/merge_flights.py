@@ -114,7 +114,8 @@ def _merge(out: Path, roots: list[Path], split_seed: int) -> dict:
     plan = files.Placement()
     merged["flights"], frames = [], []
     for label, root, real, meta, sc in zip(labels, roots, reals, metas, scenes):
-        merged["flights"].append({"name": label, "source": str(real), "frames": len(sc.frames)})
+        source = os.fsencode(real).decode("utf-8", "replace")     # printable whatever bytes the name holds
+        merged["flights"].append({"name": label, "source": source, "frames": len(sc.frames)})
         for i, (fm, f) in enumerate(zip(meta["frames"], sc.frames)):
             frames.append(_merged_frame(fm, f, (root, real, i), label, plan))
             if per_frame_sky:   # flights under other skies: each frame keeps its own
