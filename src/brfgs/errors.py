@@ -7,7 +7,11 @@ exits with status 2. Messages name the file and the field and say what was expec
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
+
+# OSErrors that are the machine's or the user's to fix, not bugs: exit status 3, one line (brfgs.cli.main).
+STORAGE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EIO})
 
 
 class UserError(Exception):

@@ -12,7 +12,6 @@ process exits with status 2.
 
 from __future__ import annotations
 
-import errno
 import importlib
 import importlib.util
 import os
@@ -28,10 +27,7 @@ if "OMP_WAIT_POLICY" not in os.environ:
 
 import typer
 
-from brfgs.errors import UserError
-
-# OSErrors that are the machine's or the user's to fix, not bugs: exit status 3, one line.
-STORAGE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EIO}
+from brfgs.errors import STORAGE_ERRNOS, UserError
 
 app = typer.Typer(
     name="brfgs",

@@ -32,7 +32,8 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"\nwrote {out / 'summary.json'} and {out / 'views_polar.png'}")
 
     @config_command(app, "merge", MergeOptions)
-    def merge_cmd(out: Path = typer.Argument(..., help="New scene folder for the merged flights."),
+    def merge_cmd(out: Path = typer.Argument(..., help="New (or empty) scene folder for the merged flights, written "
+                                                         "all at once: a failure leaves none."),
                   scenes: list[Path] = typer.Argument(..., help="Two or more co-registered flights of one site."),
                   options: dict | None = None) -> None:
         """One scene from several flights of a site (other hours or days): each frame under its own sun, each

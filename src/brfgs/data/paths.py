@@ -7,10 +7,18 @@ from pathlib import Path
 from brfgs.errors import UserError
 
 
-def inside(path: str | Path, folder: str | Path) -> bool:
-    """``path`` is ``folder`` or lies below it, after following links."""
+def resolved(path: str | Path) -> Path:
+    """``path`` with every link followed (need not exist); UserError naming it for a loop of links."""
     try:
-        Path(path).resolve().relative_to(Path(folder).resolve())
+        return Path(path).resolve()
+    except RuntimeError:      # pathlib's "Symlink loop from ..."
+        raise UserError("a loop of symbolic links", file=path) from None
+
+
+def inside(path: str | Path, folder: str | Path) -> bool:
+    """``path`` is ``folder`` or lies below it, after following links (UserError for a loop of links)."""
+    try:
+        resolved(path).relative_to(resolved(folder))
         return True
     except ValueError:
         return False

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.data.paths import inside
+from brfgs.data.paths import inside, resolved
 from brfgs.errors import UserError
 
 MAX_JSON_BYTES = 64 * 2**20   # transforms.json larger than this is refused before parsing
@@ -178,7 +178,7 @@ def path_inside(root: Path, rel: object, file: Path, field: str, allow_outside_l
     if not allow_outside_links and not inside(full, root):
         raise UserError(f"path {rel!r} leads outside the scene folder {root} (through a link); "
                         f"{ALLOW_LINKS_HINT}", file=file, field=field)
-    return full.resolve()
+    return resolved(full)
 
 
 def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transforms_file: Path,
