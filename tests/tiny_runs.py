@@ -47,6 +47,9 @@ RUNS = {
     "linear_ae": (["--spectral-basis", "autoencoder"], "linear"),
     "sh": (["--variant", "sh"], "brf"),
     "shadows": (["--shadows"], "brf"),
+    "neural": (["--variant", "neural"], "brf"),
+    "cir": (["--variant", "cir"], None),
+    "joint": (["--joint", "--learn-irradiance"], None),
 }
 
 
