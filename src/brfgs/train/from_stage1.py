@@ -31,13 +31,14 @@ from brfgs.train.state import TrainState
 PIXEL_MODEL_OPTIONS = ("supersample", "antialias")
 # the stage-1 run's timings this run keeps (the set-up it did not repeat)
 KEPT_TIMINGS = ("bands", "init", "autoencoder", "stage1")
+NOT_STAGE1 = "not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)"
 
 
 def check_stage1_options(saved: TrainConfig, cfg: TrainConfig, path: Path) -> None:
     """UserError unless ``saved`` (the checkpoint's options) made a decoupled stage 1 that ``cfg`` can
     continue: a decoupled spectral variant, the same latent size and pixel model."""
     if saved.variant == "cir" or saved.joint:
-        raise UserError("not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)", file=path)
+        raise UserError(NOT_STAGE1, file=path)
     if cfg.variant == "cir" or cfg.joint:
         raise UserError("--from-stage1 needs a decoupled spectral variant (brf, sh, neural)", field="from_stage1")
     if saved.latent_dim != cfg.latent_dim:
@@ -67,7 +68,8 @@ def check_same_frames(saved: dict, scene, path: Path) -> None:
                f"{len(saved['wavelengths_nm'])} at {saved['wavelengths_nm'][0]:g}-{saved['wavelengths_nm'][-1]:g} nm")
     intr, si = scene.intrinsics, saved["intrinsics"]
     if (int(si["w"]), int(si["h"])) != (int(intr.w), int(intr.h)):
-        refuse("scene.intrinsics", f"this scene's images are {intr.w}x{intr.h} px, the checkpoint's {si['w']}x{si['h']}")
+        refuse("scene.intrinsics",
+               f"this scene's images are {intr.w}x{intr.h} px, the checkpoint's {si['w']}x{si['h']}")
     if not _close([si[k] for k in ("fl_x", "fl_y", "cx", "cy")], [intr.fl_x, intr.fl_y, intr.cx, intr.cy]):
         refuse("scene.intrinsics", "this scene's camera (focal length, principal point) differs from the checkpoint's")
     for key, mine in (("downscale", int(getattr(scene, "downscale", 1))), ("roi", getattr(scene, "roi", None))):
@@ -94,7 +96,7 @@ def start_from_stage1(st: TrainState, scene, cfg: TrainConfig, path: Path, fit_d
     tensors, meta = st.load_checkpoint(path)
     saved = TrainConfig.from_written(meta["config"], source=str(path))  # another build's options: name the file
     if meta["phase"] != Phase.STAGE1.value or int(meta["step"]) != saved.stage1_steps:
-        raise UserError("not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)", file=path)
+        raise UserError(NOT_STAGE1, file=path)
     check_stage1_options(saved, cfg, path)
     check_same_frames(meta["scene"], scene, path)
     # this scene's description (root, sun, sky, georeference, split) with the poses the geometry was fitted in
