@@ -72,8 +72,10 @@ def check_same_frames(saved: dict, scene, path: Path) -> None:
                f"this scene's images are {intr.w}x{intr.h} px, the checkpoint's {si['w']}x{si['h']}")
     if not _close([si[k] for k in ("fl_x", "fl_y", "cx", "cy")], [intr.fl_x, intr.fl_y, intr.cx, intr.cy]):
         refuse("scene.intrinsics", "this scene's camera (focal length, principal point) differs from the checkpoint's")
-    for key, mine in (("downscale", int(getattr(scene, "downscale", 1))), ("roi", getattr(scene, "roi", None))):
-        if saved.get(key, 1 if key == "downscale" else None) != mine:
+    roi = getattr(scene, "roi", None)
+    for key, mine in (("downscale", int(getattr(scene, "downscale", 1))), ("roi", None if roi is None else list(roi))):
+        theirs = saved.get(key, 1 if key == "downscale" else None)
+        if (list(theirs) if isinstance(theirs, (list, tuple)) else theirs) != mine:
             refuse(f"scene.{key}", f"this scene is read with {key} {mine!r}, the checkpoint with {saved.get(key)!r}")
     names = [f.name for f in scene.frames]
     theirs = [f["name"] for f in saved["frames"]]
