@@ -83,14 +83,17 @@ def linear_autoencoder(n_bands: int) -> SpectralAutoencoder:
 
 def write_model_file(path, tm: TrainedModel, scene_root=None):
     """Write ``tm`` (identity decoder) as a model file: the same Gaussians, head, sun, cameras and CIR
-    bands, a linear autoencoder whose decoder is the identity, a zero background, tiny training options."""
+    bands, a linear autoencoder whose decoder is the identity, zero backgrounds, tiny training options."""
     d = tm.gaussians.latent_dim
     nb = len(tm.wavelengths_nm)
     assert d == nb
-    cfg = preset("tiny", latent_dim=d, components=tuple(tm.head_cfg.components))
+    # options that match the tensors written: no stage-1 kernels, no learned normals
+    cfg = preset("tiny", latent_dim=d, components=tuple(tm.head_cfg.components), stage1_kernels=False,
+                 learn_normals=False)
     scene = dict(tm.scene, root=str(scene_root) if scene_root else "/nonexistent/scene")
     meta = {"cir_indices": list(tm.cir_indices), "cir_scale": [float(v) for v in tm.cir_scale], "phase": "done",
             "step": 0, "extent_m": 20.0}
     out = TrainedModel(gaussians=tm.gaussians, head_cfg=tm.head_cfg, decoder=linear_autoencoder(nb), scene=scene,
-                       config=cfg.to_dict(), extra={"bg_latent": torch.zeros(d)}, meta=meta)
+                       config=cfg.to_dict(), extra={"bg_latent": torch.zeros(d), "bg_colors": torch.zeros(tm.gaussians.n_colors)},
+                       meta=meta)
     return out.save(path)

@@ -71,7 +71,7 @@ def test_linear_model_round_trip(tmp_path):
 
 @pytest.mark.parametrize("change, field", [({"spectral_basis": "pca"}, "spectral_basis"),
                                            ({"spectral_basis": "linear"}, "linear_basis"),
-                                           ({"linear_basis": "not json"}, None)])
+                                           ({"linear_basis": "not json"}, "linear_basis")])
 def test_a_damaged_record_is_named(tmp_path, change, field):
     tm = linear_model() if "linear_basis" in change else small_model()
     meta = tm.metadata()

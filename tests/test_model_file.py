@@ -36,7 +36,7 @@ def small_model(n: int = 60, bands: int = 8, d: int = 4, seed: int = 0) -> Train
              "intrinsics": {"fl_x": intr.fl_x, "fl_y": intr.fl_y, "cx": intr.cx, "cy": intr.cy, "w": intr.w, "h": intr.h},
              "downscale": 1, "roi": None, "split": {}, "frames": frames}
     return TrainedModel(gaussians=gm, head_cfg=cfg, decoder=SpectralAutoencoder(bands, d).eval(), scene=scene,
-                        config={"variant": "brf"}, extra={"bg_latent": torch.zeros(d)},
+                        config={"variant": "brf"}, extra={"bg_latent": torch.zeros(d), "bg_colors": torch.zeros(3)},
                         meta={"cir_indices": [bands - 1, bands // 2, 0], "cir_scale": [1.0, 1.0, 1.0]})
 
 

@@ -92,7 +92,8 @@ def synthetic_model(n_gaussians: int = 50_000, n_bands: int = 164, latent_dim: i
              "fwhm_nm": None, "sun_zenith_deg": 35.0, "sun_azimuth_deg": 150.0,
              "intrinsics": intrinsics_json(intr),
              "frames": frames}
-    return TrainedModel(gaussians=gm, head_cfg=cfg, decoder=ae, scene=scene, config={"variant": "brf"},
+    extra = {"bg_latent": torch.zeros(latent_dim), "bg_colors": torch.zeros(gm.n_colors)}  # zero backgrounds
+    return TrainedModel(gaussians=gm, head_cfg=cfg, decoder=ae, scene=scene, config={"variant": "brf"}, extra=extra,
                         meta={"cir_indices": [123, 76, 50], "cir_scale": [1.0, 1.0, 1.0]})
 
 

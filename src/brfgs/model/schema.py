@@ -15,6 +15,7 @@ from torch import Tensor
 from brfgs.data.sky import MAX_DIFFUSE_FRACTION
 from brfgs.errors import UserError
 from brfgs.model.gaussians import APPEARANCES, GEOMETRY_KEYS
+from brfgs.model.layout import DescriptionError, layout_problem
 from brfgs.spectral.decoders import DESCRIPTION_KEYS, SPECTRAL_BASES
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
@@ -84,7 +85,9 @@ def check_metadata(meta: dict, path: Path) -> None:
 
 
 def check_tensors(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:
-    """UserError unless the Gaussian tensors exist, agree in their row count and are finite."""
+    """UserError unless the Gaussian tensors exist, agree in their row count and are finite, and the
+    file holds exactly the tensors a model of its kind holds (:func:`brfgs.model.layout.layout_problem`:
+    a missing one or one of another kind is refused, checksum or not)."""
     n = None
     for key in GEOMETRY_KEYS:
         t = tensors.get("param." + key)
@@ -98,22 +101,9 @@ def check_tensors(tensors: dict[str, Tensor], meta: dict, path: Path) -> None:
             raise UserError("holds NaN or infinite values (damaged file?)", file=path, field=name)
     if meta["appearance"] != "cir":
         _check(any(k.startswith("decoder.") for k in tensors), "missing the decoder's tensors", path, "decoder.")
-    for name in required_tensors(meta):
-        _check(name in tensors, "missing tensor", path, name)
-
-
-def required_tensors(meta: dict) -> list[str]:
-    """The tensors a model of ``meta``'s head cannot render without (besides the geometry and the
-    decoder): the head's latents and the roughness of a specular head (a checkpoint of stage 1 has no
-    head yet). The learned background is optional (without it the background is 0)."""
-    head = meta["head"]
-    if meta.get("phase") == "stage1":
-        return []
-    if head.get("kind") == "hybrid":
-        comps = head.get("components") or ()
-        names = [f"param.z_{c}" for c in comps] + (["param.rho_raw"] if "spec" in comps else [])
-    elif head.get("kind") == "neural":
-        names = ["param.feat", "neural.net.0.weight"]
-    else:
-        names = ["param.sh"]
-    return names
+    try:
+        problem = layout_problem(tensors, meta)
+    except DescriptionError as exc:  # a description the tensor names cannot come from
+        raise UserError(f"not a description brfgs writes ({exc})", file=path, field=exc.field) from None
+    if problem is not None:
+        raise UserError(problem[1], file=path, field=problem[0])

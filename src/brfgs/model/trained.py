@@ -32,6 +32,7 @@ from brfgs.model.features import HEAD_PARAM_KEYS, NeuralHead
 from brfgs.model.gaussians import GaussianModel
 from brfgs.model.rendering import decode_image
 from brfgs.model.shadows import gaussian_visibility, scene_diffuse_fraction
+from brfgs.model.layout import check_written
 from brfgs.model.schema import check_metadata, check_tensors
 from brfgs.spectral.decoders import (DESCRIPTION_KEYS, SpectralDecoder, decoder_from_state, decoder_metadata,
                                     decoder_state, is_linear)
@@ -342,7 +343,9 @@ class TrainedModel:
 
     def save(self, path: str | Path) -> Path:
         """Write ``path`` (model.safetensors) atomically."""
-        return io.save(path, self.tensors(), self.metadata())
+        tensors, meta = self.tensors(), self.metadata()
+        check_written(tensors, meta, path)
+        return io.save(path, tensors, meta)
 
     @classmethod
     def from_file_contents(cls, tensors: dict[str, Tensor], meta: dict, path: Path) -> "TrainedModel":

@@ -13,7 +13,7 @@ from brfgs.spectral.autoencoder import SpectralAutoencoder, autoencoder_from_sta
 from brfgs.spectral.linear_basis import LinearBasis, linear_basis_from_state, linear_basis_state
 
 __all__ = ["SPECTRAL_BASES", "DESCRIPTION_KEYS", "SpectralDecoder", "basis_kind", "is_linear", "decoder_metadata",
-           "decoder_state", "decoder_from_state"]
+           "decoder_state", "decoder_from_state", "decoder_from_description"]
 
 SPECTRAL_BASES = ("autoencoder", "linear")
 DESCRIPTION_KEYS = {"autoencoder": "autoencoder", "linear": "linear_basis"}  # metadata key of each description
@@ -51,3 +51,13 @@ def decoder_from_state(tensors: dict, meta: dict, prefix: str = "decoder.") -> S
     if kind == "autoencoder":
         return autoencoder_from_state(tensors, meta, prefix)
     raise ValueError(f"unknown spectral basis {kind!r} (expected one of {', '.join(SPECTRAL_BASES)})")
+
+
+def decoder_from_description(meta: dict) -> SpectralDecoder:
+    """A decoder of the architecture a model file's metadata describes (its weights as made, not loaded):
+    what :func:`decoder_from_state` fills, e.g. to list the tensors a file must hold."""
+    kind = meta.get("spectral_basis", "autoencoder")
+    if kind not in SPECTRAL_BASES:
+        raise ValueError(f"unknown spectral basis {kind!r} (expected one of {', '.join(SPECTRAL_BASES)})")
+    cls = LinearBasis if kind == "linear" else SpectralAutoencoder
+    return cls.from_description(json.loads(meta[DESCRIPTION_KEYS[kind]]))

@@ -23,7 +23,9 @@ class TrainCommandOptions:
 
     train: TrainConfig = field(default_factory=TrainConfig, metadata={"flatten": True})
     config: Optional[Path] = _run(None, "Train with a run's config.json (options given here override it).")
-    from_stage1: Optional[Path] = _run(None, "Start stage 2 from another run's checkpoints/stage1.safetensors.")
+    from_stage1: Optional[Path] = _run(None, "Start stage 2 from another run's checkpoints/stage1.safetensors: "
+                                             "its geometry only (SCENE's frames and fields and these options are "
+                                             "trained; SCENE must have the same frames).")
     evaluate: bool = _run(True, "Evaluate the held-out views after training.", flag="--evaluate/--no-evaluate")
     overwrite: bool = _run(False, "Replace a finished run in OUT.")
     quiet: bool = _run(False, "No progress bars.")

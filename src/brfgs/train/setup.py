@@ -20,6 +20,7 @@ from brfgs.init.mvs import MVSConfig, dense_cloud, write_dense_ply
 from brfgs.init.truth import surface_samples
 from brfgs.model import DensifyState, init_from_points, scene_description, scene_extent, surface_fill
 from brfgs.model.features import NeuralHead
+from brfgs.model.layout import has_colors_kernels, has_irradiance_scales, has_learned_normals
 from brfgs.model.rendering import rasterize_splats
 from brfgs.model.shadows import pixel_visibility, sun_sky_light
 from brfgs.spectral.autoencoder import AutoencoderConfig, evaluate_autoencoder, sample_pixels, train_autoencoder
@@ -28,7 +29,7 @@ from brfgs.spectral.linear_basis import fit_linear_basis
 from brfgs.train.config import TrainConfig
 from brfgs.train.dense_depth import FILE as DENSE_DEPTH_FILE, save_dense_depths
 from brfgs.train.images import TrainImages
-from brfgs.train.phases import Phase, run_plan
+from brfgs.train.phases import run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.state import TrainState, head_config
 from brfgs.train.targets import backprojected_reflectance, backprojected_targets, ground_footprints
@@ -128,9 +129,9 @@ def initial_gaussians(state: TrainState, scene, cfg: TrainConfig, init, images: 
             gm.params["colors"].copy_(backprojected_targets(gm, images("colors"), state.cameras, scene.train_indices,
                                                             backend=cfg.backend, antialiased=cfg.antialias,
                                                             supersample=cfg.supersample))
-    has_stage1 = run_plan(cfg)[0][0] == Phase.STAGE1  # CIR and joint runs have no stage-1 colours to extend
     k = gm["colors"].shape[1]
-    if cfg.stage1_kernels and has_stage1:  # stage-1 colours with eq. 12's kernels
+    # stage-1 colours with eq. 12's kernels (CIR and joint runs have no stage-1 colours to extend)
+    if has_colors_kernels(cfg.stage1_kernels, cfg.variant, cfg.joint):
         gm.params["colors_kernels"] = torch.zeros(gm.n, 2, k, requires_grad=True)
     state.densify = DensifyState(gm.n)
     bg = np.nanmean(init.colors, 0) if s1 == bands else gm["colors"].detach().mean(0).numpy()  # [C]
@@ -200,7 +201,7 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
                                          encode=lambda img: encode_spectra(state.decoder, img),
                                          backend=cfg.backend, antialiased=cfg.antialias, supersample=cfg.supersample)
         state.extra["bg_latent"] = base.mean(0).detach()
-        if cfg.learn_irradiance:        # log of each frame's irradiance scale, learned in the spectral phases
+        if has_irradiance_scales(cfg.variant, cfg.learn_irradiance):  # log of each frame's irradiance scale
             state.extra["log_irradiance"] = torch.zeros(len(state.cameras))
         if cfg.variant == "neural":
             params = {"feat": base}
@@ -209,7 +210,7 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
         else:
             hc = head_config(cfg)
             params = init_head_params(hc, n, cfg.latent_dim, z_init=base)
-            if cfg.variant == "brf" and cfg.learn_normals and hc.needs_normals:
+            if has_learned_normals(cfg.variant, cfg.learn_normals, hc):
                 up = torch.zeros_like(gm.means)
                 up[:, 2] = 1.0
                 params["normals"] = gaussian_normals(gm.quats, gm.scales, up).detach()

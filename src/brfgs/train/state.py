@@ -19,6 +19,7 @@ from brfgs.brdf.head import HeadConfig
 from brfgs.model import DensifyState, GaussianModel, NamedAdam, TrainedModel
 from brfgs.model import io
 from brfgs.model.camera import Camera, cameras_from_description
+from brfgs.model.layout import check_written
 from brfgs.model.features import NeuralHead, uncentre
 from brfgs.model.shadows import gaussian_visibility, scene_diffuse_fraction
 from brfgs.spectral.autoencoder import SpectralAutoencoder
@@ -148,6 +149,7 @@ class TrainState:
         tensors["rng.torch"] = self.gen.get_state()
         meta = tm.metadata()
         meta.update({"optim": self.opt.state_meta(), "densify_resets": self.densify.n_resets, "perm": list(self.perm)})
+        check_written(tensors, meta, path)
         return io.save(path, tensors, meta)
 
     def save_model(self, path: Path) -> Path:

@@ -42,7 +42,8 @@ from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, run_plan
 from brfgs.train.run_folder import RunFolder
 from brfgs.train.schedule import learning_rates
-from brfgs.train.setup import init_head, run_setup
+from brfgs.train.from_stage1 import start_from_stage1
+from brfgs.train.setup import fit_autoencoder, init_head, run_setup
 from brfgs.train.dense_depth import load_dense_depth
 from brfgs.train.state import TrainState
 from brfgs.train.step import forward, make_batch, neighbours, pick_view
@@ -98,8 +99,12 @@ class Trainer:
             self._resume()
             self.log(f"resuming {self.out} at {st.phase.value} step {st.step}")
         elif self.from_stage1 is not None:
-            self._start_from_stage1(self.from_stage1)
-            self._checkpoint()
+            def start():
+                self._start_from_stage1(self.from_stage1)
+                self._checkpoint()
+            self._on_main(start)
+            if not self.comm.is_main:  # the other ranks start from rank 0's first checkpoint
+                self._resume()
         else:
             def setup():
                 self.images = run_setup(st, self.scene, self.cfg, self.folder, self.progress, self.log)
@@ -253,33 +258,17 @@ class Trainer:
                         "pass --overwrite to start again", file=self.folder.last_ckpt)
 
     def _start_from_stage1(self, path: Path) -> None:
-        """A new run (another spectral variant) from the end of a decoupled run's stage 1."""
-        st, cfg = self.state, self.cfg
-        tensors, meta = st.load_checkpoint(path)
-        saved = TrainConfig.from_written(meta["config"], source=str(path))  # another build's options: name the file
-        at_end = meta["phase"] == Phase.STAGE1.value and int(meta["step"]) == saved.stage1_steps
-        if saved.variant == "cir" or saved.joint or not at_end:
-            raise UserError("not a stage-1 checkpoint (expected checkpoints/stage1.safetensors of a decoupled run)", file=path)
-        if cfg.variant == "cir" or cfg.joint:
-            raise UserError("--from-stage1 needs a decoupled spectral variant (brf, sh, neural)", field="from_stage1")
-        if saved.latent_dim != cfg.latent_dim:
-            raise UserError("latent_dim differs from the stage-1 run", file=path, field="latent_dim")
-        for name in ("supersample", "antialias"):  # the pixel model the geometry was fitted with
-            if getattr(saved, name) != getattr(cfg, name):
-                raise UserError(f"{name} is {getattr(cfg, name)}, but the stage-1 run fitted its geometry with "
-                                f"{getattr(saved, name)}: give the same (e.g. the stage-1 run's --preset)",
-                                file=path, field=name)
-        st.neural = None
-        st.densify = DensifyState(st.gaussians.n)
-        if self.comm.is_main:
-            self.folder.write_json("split.json", st.meta["scene"]["split"])
-        st.meta["stage1_from"] = str(Path(path).resolve())
-        st.timings = {k: v for k, v in st.timings.items() if k in ("bands", "init", "autoencoder", "stage1")}
-        # continue the stage-1 run's random stream (view order, ray samples): with the same options,
-        # a run started from a stage-1 checkpoint reproduces the continuous run exactly
-        if "rng.torch" in tensors:
-            st.gen.set_state(tensors["rng.torch"])
-        st.perm = list(meta.get("perm", []))
+        """A new run (another spectral variant or basis, this scene's fields) from the end of a decoupled
+        run's stage 1: only the geometry comes from the checkpoint (:mod:`brfgs.train.from_stage1`)."""
+        st = self.state
+
+        def fit_decoder():
+            t = time.perf_counter()
+            fit_autoencoder(st, self.scene, self.cfg, self._train_images(), self.folder, self.progress, self.log)
+            st.timings["autoencoder"] = time.perf_counter() - t
+
+        start_from_stage1(st, self.scene, self.cfg, path, fit_decoder)
+        self.folder.write_json("split.json", st.meta["scene"]["split"])
         self._begin_phase(Phase.STAGE2)
 
     def _begin_phase(self, phase: Phase) -> None:
