@@ -8,7 +8,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import tifffile
-import torch
 
 from brfgs.data import cube_io, read_scene
 from brfgs.data.cameras import Intrinsics, pose_from_view_angles
