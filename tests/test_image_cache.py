@@ -106,3 +106,54 @@ def test_dark_sigma_skips_pixels_that_are_not_finite(tmp_path):
     write_envi(root / "calibration" / "dark_01.hdr", dark, np.linspace(420.0, 880.0, 6))
     paths = sorted((root / "calibration").glob("dark_*.hdr"))
     np.testing.assert_allclose(read_scene(root).dark_sigma, _reference_sigma(paths), rtol=1e-10)
+
+
+def test_backprojection_by_windows_equals_the_whole_views(tmp_path, monkeypatch):
+    """Set-up's per-Gaussian targets of frames the cache cannot hold, computed window by window (7 px
+    squares), equal those of whole views within float32 rounding (a window camera's shifted principal point); so does the lit surface's reflectance."""
+    import torch
+    from brfgs.model import init_from_points
+    from brfgs.model.camera import cameras_from_description, scene_description
+    from brfgs.train import images as images_mod
+    from brfgs.train.targets import backprojected_reflectance, backprojected_targets
+
+    sc = read_scene(make_scene(tmp_path / "s", w=20, h=14, n_bands=5, n_dark=0))
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-8, 8, (300, 3)).astype(np.float32)
+    pts[:, 2] = 0.0
+    gm = init_from_points(pts, np.full((300, 3), 0.3, np.float32), latent_dim=4)
+    cams = cameras_from_description(scene_description(sc, np.stack([f.c2w for f in sc.frames])))
+    idx = sc.train_indices
+    held, windowed = ImageStore(sc, idx), ImageStore(sc, idx, cache_gib=0.0)
+    monkeypatch.setattr(images_mod, "TILE_PX", 7)
+    pieces = list(windowed.tiles(idx[0], cams[idx[0]]))
+    assert len(pieces) == 6 and pieces[-1][0].width == 6 and pieces[-1][1].shape == (7, 6, 5)
+    whole = backprojected_targets(gm, held, cams, idx, backend="torch")
+    tiled = backprojected_targets(gm, windowed, cams, idx, backend="torch")
+    np.testing.assert_allclose(tiled.numpy(), whole.numpy(), rtol=1e-4, atol=1e-6)   # float32 pixel coordinates
+    light = torch.tensor([0.5, 1.0, 2.0, 0.25, 1.5])
+    lit = [backprojected_reflectance(gm, s, cams, idx, lambda i, cam: light.expand(cam.height, cam.width, 5),
+                                     backend="torch") for s in (held, windowed)]
+    np.testing.assert_allclose(lit[1].numpy(), lit[0].numpy(), rtol=1e-4, atol=1e-6)
+    assert not windowed.cache
+
+
+def test_autoencoder_pixels_by_row_blocks_equal_the_whole_frames(tmp_path):
+    """The decoder's training pixels drawn from frames read by row blocks (valid mask, then the chosen
+    pixels) are those drawn from whole cubes, NaN pixels skipped alike."""
+    from brfgs.data.pixels import FramePixels
+    from brfgs.spectral.autoencoder import sample_pixels
+
+    root = make_scene(tmp_path / "s", n_frames=4, n_dark=0, w=24, h=16)
+    sc = read_scene(root)
+    whole = [sc.load_image(i) for i in range(4)]
+    whole[1][3, 4, 2] = np.nan
+    sc.load_image = lambda i, bands=None: whole[i].copy()     # the reader's NaN pixel, for both paths
+    sc.scan_image = lambda i, bands=None, visit=None: [visit(r, r + 5, whole[i][r:r + 5]) for r in range(0, 16, 5)]
+    a = sample_pixels([lambda i=i: sc.load_image(i) for i in range(4)], 300, seed=4)
+    b = sample_pixels([lambda i=i: FramePixels(sc, i) for i in range(4)], 300, seed=4)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (4 * 75, 6) and np.isfinite(a).all()
+    store = ImageStore(sc, [0, 1, 2, 3], cache_gib=0.0)
+    assert isinstance(store.for_sampling(2), FramePixels)
+    assert isinstance(ImageStore(sc, [0, 1]).for_sampling(1), np.ndarray)

@@ -244,19 +244,30 @@ class Scene:
     def check_image(self, i: int, bands=None) -> None:
         """The checks :meth:`load_image` makes of frame ``i`` (UserError for too many values outside the
         range; with ``bands`` None, its counts of invalid and bright pixels recorded) reading it a row
-        block at a time, without holding it (a frame with its own camera is loaded whole)."""
+        block at a time, without holding it (:meth:`scan_image`)."""
+        self.scan_image(i, bands)
+
+    def scan_image(self, i: int, bands=None, visit=None) -> None:
+        """Frame ``i`` a row block at a time: ``visit(r0, r1, block)`` with rows r0..r1 of what
+        :meth:`load_image` returns (float32 [r1 - r0, W, b], the same values), then its checks (see
+        :meth:`check_image`). A frame with its own camera is loaded whole (one block)."""
         src, cam = self._sources[i], self.frames[i].camera
         if cam is not None and (src.lines, src.samples) == (cam.intrinsics.h, cam.intrinsics.w):
-            self.load_image(i, bands)
+            cube = self.load_image(i, bands)
+            if visit is not None:
+                visit(0, cube.shape[0], cube)
             return
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
         tally = RangeTally(self.value_range)
         n_bad = [0]
 
-        def count(r0: int, r1: int, block: np.ndarray) -> None:
-            n_bad[0] += self._finish(i, np.array(block, np.float32))
+        def each(r0: int, r1: int, block: np.ndarray) -> None:
+            block = np.array(block, np.float32)
+            n_bad[0] += self._finish(i, block)
+            if visit is not None:
+                visit(r0, r1, block)
 
-        for_each_block(src, file_bands, self.roi, self.downscale, tally, self.frames[i].name, count)
+        for_each_block(src, file_bands, self.roi, self.downscale, tally, self.frames[i].name, each)
         if bands is None:
             self.invalid_counts[self.frames[i].name] = n_bad[0]
             self.bright_counts[self.frames[i].name] = tally.n_high

@@ -12,6 +12,10 @@ from torch import Tensor
 from tqdm import tqdm
 
 from brfgs.data.cir import cir_composite
+from brfgs.data.pixels import FramePixels
+
+
+TILE_PX = 512   # side of the windows a frame that the cache cannot hold is processed in (set-up)
 
 
 class ByteLRU:
@@ -115,6 +119,14 @@ class ImageStore:
         cube[~valid.numpy()] = np.nan
         return cube
 
+    def for_sampling(self, i: int):
+        """Frame ``i`` for a sampler of pixels (brfgs.spectral.autoencoder.sample_pixels): its target with
+        NaN where invalid when the cache holds it or has room for it, else the frame read by row blocks
+        (:class:`brfgs.data.pixels.FramePixels`; a store without a transform)."""
+        if self.transform is None and (self.name, i) not in self.lru and not self.lru.room(self.frame_bytes):
+            return FramePixels(self.scene, i, self.bands)
+        return self.get_with_nan(i)
+
     def get(self, i: int) -> tuple[Tensor, Tensor]:
         """The whole frame ``i``'s target (held in the cache when it fits, evicting the least recently used)."""
         hit = self.lru.get((self.name, i))
@@ -139,6 +151,21 @@ class ImageStore:
             self.scene.check_image(i, self.bands)
             self._checked.add(i)
         return self._target(self.scene.load_window(i, window, bands=self.bands))
+
+    def tiles(self, i: int, cam, tile_px: int | None = None):
+        """(camera, target [h, w, C], valid [h, w]) pieces that cover frame ``i`` seen by ``cam`` (a
+        brfgs.model.camera.Camera of the whole frame): the whole frame when the cache holds it or has
+        room for it, else windows of at most ``tile_px`` (default TILE_PX) square read from the file, each
+        with its camera (``cam.crop``), so that no whole cube of a large frame is in memory."""
+        tile_px = tile_px or TILE_PX
+        if (self.name, i) in self.lru or self.lru.room(self.frame_bytes):
+            yield (cam, *self.get(i))
+            return
+        w, h = self.scene.width, self.scene.height
+        for y0 in range(0, h, tile_px):
+            for x0 in range(0, w, tile_px):
+                win = (x0, y0, min(tile_px, w - x0), min(tile_px, h - y0))
+                yield (cam.crop(*win), *self.get_window(i, win))
 
     def preload(self, progress: bool = False) -> None:
         """Load the frames into the cache while they fit without evicting any."""
