@@ -158,7 +158,8 @@ class TrainConfig:
     mcmc: MCMCConfig = _x(MCMCConfig(), "3DGS-MCMC densification (--strategy mcmc).")
     patch_px: int = _x(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _x(0, "Stage 2 scores this many random pixels of each view (0 = all).")
-    cache_gib: float = _x(4.0, "Keep training cubes in memory up to this size (GiB), else read them per step.")
+    cache_gib: float = _x(4.0, "Hold whole training cubes in memory up to this size (GiB; the least recently used "
+                          "leave first); other frames are read per step, only the patch's window.")
     log_every: int = _x(10, "Steps between rows of train_log.csv.")
     allow_outside_links: bool = _x(False, "Read files that links in the scene folder lead to outside it.",
                                    "--allow-outside-links/--confine-to-scene")
