@@ -41,7 +41,12 @@ class ByteLRU:
         return self._entries[key][0]
 
     def keys(self) -> list:
+        """The keys held, least recently used first."""
         return list(self._entries)
+
+    def items(self) -> list:
+        """(key, value) of the entries held, least recently used first."""
+        return [(k, v) for k, (v, _) in self._entries.items()]
 
     def room(self, nbytes: int, keep: Callable[[object], bool] | None = None) -> bool:
         """Whether ``nbytes`` fit after evicting the entries whose key ``keep`` does not keep (all: None)."""
@@ -94,7 +99,7 @@ class ImageStore:
     @property
     def cache(self) -> dict[int, tuple[Tensor, Tensor]]:
         """The frames of this store that the cache holds now {index: (image, valid)}."""
-        return {k[1]: self.lru._entries[k][0] for k in self.lru.keys() if k[0] == self.name}
+        return {k[1]: v for k, v in self.lru.items() if k[0] == self.name}
 
     def _mine(self, key) -> bool:
         return key[0] == self.name
