@@ -180,19 +180,19 @@ def test_backprojected_reflectance_limits(tmp_path):
     pts[:, 2] = 0.0
     gm = init_from_points(pts, np.full((300, 3), 0.3, np.float32), latent_dim=4)
 
-    class Store:
-        def get(self, i):
-            img = torch.from_numpy(sc.load_image(i))
-            return img, torch.isfinite(img).all(-1)
+    from brfgs.train.images import ImageStore
+
+    def Store():
+        return ImageStore(sc, sc.train_indices)
 
     from brfgs.model.camera import scene_description
     cams = cameras_from_description(scene_description(sc, np.stack([f.c2w for f in sc.frames])))
     idx = sc.train_indices
     plain = backprojected_targets(gm, Store(), cams, idx, backend="torch")
-    ones = backprojected_reflectance(gm, Store(), cams, idx, lambda i: torch.ones(14, 20, 5), backend="torch")
+    ones = backprojected_reflectance(gm, Store(), cams, idx, lambda i, cam: torch.ones(cam.height, cam.width, 5), backend="torch")
     np.testing.assert_allclose(ones.numpy(), plain.numpy(), rtol=1e-5, atol=1e-6)
     c = torch.tensor([0.5, 1.0, 2.0, 0.25, 1.5])
-    scaled = backprojected_reflectance(gm, Store(), cams, idx, lambda i: c.expand(14, 20, 5), backend="torch")
+    scaled = backprojected_reflectance(gm, Store(), cams, idx, lambda i, cam: c.expand(cam.height, cam.width, 5), backend="torch")
     np.testing.assert_allclose(scaled.numpy(), plain.numpy() / c.numpy(), rtol=1e-4, atol=1e-6)
 
 

@@ -65,7 +65,7 @@ def test_bad_options_are_user_errors(scene, tmp_path, capsys):
     for opts, field in ((["--supersample", "5"], "supersample"), (["--lambda-normal", "-1"], "lambda_normal"),
                         (["--lambda-flat", "-0.1"], "lambda_flat"), (["--lambda-depth-smooth", "-1"], "lambda_depth_smooth"),
                         (["--strategy", "other"], "strategy"), (["--lr-spec", "0"], "lr_spec"),
-                        (["--mcmc-growth", "-0.1"], "mcmc.growth"), (["--max-gaussians", "0"], "max_gaussians"),
+                        (["--mcmc-growth", "-0.1"], "mcmc.growth"), (["--max-gaussians", "-1"], "max_gaussians"),
                         (["--init-fill", "dream"], "init_fill")):
         capsys.readouterr()
         assert main(["train", str(scene), str(tmp_path / "y"), *opts, "--quiet"]) == 2

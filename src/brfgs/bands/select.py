@@ -17,8 +17,12 @@ max-features   band with the most detected features (mean over views)
 =============  ================================================================
 
 Images larger than ``detect_max_px`` on their long side are area-downscaled by an integer
-factor before detection (recorded as ``detect_downscale``): EFC ranks bands, and a
-full-resolution 1000² cube × 164 bands × 49 views would otherwise take minutes.
+factor while they are read (recorded as ``detect_downscale``; no full-resolution cube is held), and
+when the views × bands × pixels of these copies exceed ``detect_max_mpx`` million, the statistics
+use an evenly spread subset of the views that fits (recorded as ``views``): EFC ranks bands, and a
+full-resolution 1886² cube × 164 bands × 49 views would otherwise take the better part of an hour.
+Smaller scenes (up to 512² and 600 M band-pixels: a 49-view 256² scene of 164 bands) use every
+pixel of every view.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from brfgs.bands import efc as E
-from brfgs.bands.options import DEFAULT_DETECT_MAX_PX, STRATEGIES  # noqa: F401  (re-exported)
+from brfgs.bands.options import DEFAULT_DETECT_MAX_MPX, DEFAULT_DETECT_MAX_PX, STRATEGIES  # noqa: F401  (re-exported)
 from brfgs.data import atomic
 from brfgs.data.figures import pyplot
 from brfgs.errors import UserError
@@ -140,11 +144,32 @@ def detect_downscale_factor(width: int, height: int, detect_max_px: int | None) 
     return int(math.ceil(max(width, height) / detect_max_px))
 
 
+def spread_views(views: list[int], n_max: int) -> list[int]:
+    """At most ``n_max`` (>= 1) of ``views``, evenly spread over the list in its order (all when they fit)."""
+    if n_max >= len(views):
+        return list(views)
+    n = max(1, int(n_max))
+    pick = np.unique(np.round(np.linspace(0, len(views) - 1, n)).astype(int))
+    return [views[k] for k in pick]
+
+
+def views_within_budget(views: list[int], width: int, height: int, n_bands: int, factor: int,
+                        detect_max_mpx: float | None) -> list[int]:
+    """The views whose band images (``n_bands`` each, ``width`` x ``height`` downscaled by ``factor``) fit in
+    ``detect_max_mpx`` million pixels: all when they do or the budget is 0/None, else an evenly spread subset."""
+    if not detect_max_mpx:
+        return list(views)
+    per_view = (width // factor) * (height // factor) * n_bands
+    return spread_views(views, max(1, int(detect_max_mpx * 1e6 // max(per_view, 1))))
+
+
 def compute_band_stats(scene, views: list[int] | None = None, detect_max_px: int | None = DEFAULT_DETECT_MAX_PX,
-                       progress: bool = False) -> BandStats:
+                       progress: bool = False, detect_max_mpx: float | None = DEFAULT_DETECT_MAX_MPX) -> BandStats:
     """EFC (eqs 3–7), feature counts and SNR of every band of ``scene``.
 
-    ``views`` are frame indices (default all frames: geometry uses every view).
+    ``views`` are frame indices (default all frames: geometry uses every view), thinned to what
+    ``detect_max_mpx`` allows (:func:`views_within_budget`); views larger than ``detect_max_px`` are
+    read area-downscaled.
     """
     views = list(range(len(scene.frames))) if views is None else list(views)
     if not views:
@@ -152,6 +177,7 @@ def compute_band_stats(scene, views: list[int] | None = None, detect_max_px: int
     sigma = np.asarray(scene.dark_sigma, np.float64)
     n_b = len(scene.wavelengths_nm)
     factor = detect_downscale_factor(scene.width, scene.height, detect_max_px)
+    views = views_within_budget(views, scene.width, scene.height, n_b, factor, detect_max_mpx)
     sift = E.make_sift()
     qualities: list[list[np.ndarray]] = []
     counts = np.zeros((len(views), n_b), np.int64)
@@ -161,7 +187,7 @@ def compute_band_stats(scene, views: list[int] | None = None, detect_max_px: int
     if progress:
         it = tqdm(views, desc="band statistics (views)", unit="view")
     for v, i in enumerate(it):
-        cube = _block_mean(scene.load_image(i), factor)  # [H, W, B]
+        cube = scene.load_image(i) if factor == 1 else scene.load_reduced(i, factor)  # [H, W, B]
         valid = np.isfinite(cube).all(-1)
         q, counts[v] = E.band_quality_of_view(cube, sigma, valid, sift)
         qualities.append(q)
@@ -197,7 +223,8 @@ def strategy_needs_stats(strategy: str) -> bool:
 
 def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandStats | None = None,
                  detect_max_px: int | None = DEFAULT_DETECT_MAX_PX, progress: bool = False,
-                 with_stats: bool = False, min_separation_nm: float = 0.0) -> BandSelection:
+                 with_stats: bool = False, min_separation_nm: float = 0.0,
+                 detect_max_mpx: float | None = DEFAULT_DETECT_MAX_MPX) -> BandSelection:
     """Choose the geometry bands of ``scene`` with ``strategy`` (see the module table).
 
     ``min_separation_nm`` (EFC strategies; beyond the paper, default 0 = eq. 8): chosen bands are at
@@ -216,7 +243,7 @@ def select_bands(scene, strategy: str = "efc-top3", top: int = 3, stats: BandSta
         if not isinstance(top, (int, np.integer)) or not 1 <= top <= n_b:
             raise UserError(f"--top must be between 1 and the number of bands ({n_b}), got {top}", field="top")
     if stats is None and (strategy_needs_stats(strategy) or with_stats):
-        stats = compute_band_stats(scene, detect_max_px=detect_max_px, progress=progress)
+        stats = compute_band_stats(scene, detect_max_px=detect_max_px, progress=progress, detect_max_mpx=detect_max_mpx)
     k = {"efc": top, "efc-top1": 1, "efc-top3": 3}.get(strategy)
     if k is not None:
         k = min(k, n_b)

@@ -22,7 +22,8 @@ def select_bands_cmd(scene: Path, options: dict) -> None:
     sc = opt.read_scene(scene, o.read)
     out = o.out if o.out is not None else Path.cwd() / f"bands_{sc.name}"
     opt.check_output_dir(out, sc.root, overwrite=o.overwrite, marker="bands.json")
-    sel = select_bands(sc, o.strategy, top=o.top, detect_max_px=o.detect_max_px, progress=not o.quiet,
+    sel = select_bands(sc, o.strategy, top=o.top, detect_max_px=o.detect_max_px, detect_max_mpx=o.detect_max_mpx,
+                       progress=not o.quiet,
                        with_stats=True, min_separation_nm=o.min_separation_nm)
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "bands.json", sel.to_json())

@@ -17,6 +17,7 @@ import tifffile
 from brfgs.data.validation import RangeTally, confined, header_matches
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
+from brfgs.data.tiff_window import read_tiff_window
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
@@ -216,53 +217,103 @@ def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_li
                     file=tf, field="file_path")
 
 
+_BYTES_READ = [0]   # stored bytes taken out of cube files since the process started (bytes_read)
+
+
+def bytes_read() -> int:
+    """Bytes of stored cube data read so far by this process (the rows, columns and bands of each
+    window or row block as stored; a TIFF's compressed strips or tiles as stored; a file that cannot be
+    read by window counts whole): what a test of windowed reading compares with a cube's size."""
+    return _BYTES_READ[0]
+
+
 def _raw_array(src: CubeSource):
-    """A lazily indexable [lines, samples, bands] view of the cube (memory map where possible)."""
+    """A lazily indexable [lines, samples, bands] view of the cube (a memory map), or None for a
+    TIFF that cannot be memory-mapped (compressed, tiled or striped): read by window then."""
     if src.kind == "envi":
         return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
     if src.kind == "npy":
         return np.load(src.path, mmap_mode="r")
     try:
         arr = tifffile.memmap(src.path, mode="r")
-    except Exception:  # compressed or tiled TIFF: read whole (small files in practice)
-        arr = tifffile.imread(src.path)
+    except Exception:  # compressed or segmented TIFF: strips or tiles (brfgs.data.tiff_window)
+        return None
     return np.moveaxis(arr, 0, -1) if src.band_axis_first else arr
 
 
-def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: int, tally: RangeTally,
-                         frame: str) -> np.ndarray:
-    """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
+def _raw_window(src: CubeSource, rows: slice, cols: slice) -> np.ndarray:
+    """Stored values [h, w, bands] of rows ``rows`` and columns ``cols`` (slices in pixels): a view of
+    a memory map (dropped by the caller after use), or the decoded strips or tiles of a TIFF."""
+    raw = _raw_array(src)
+    if raw is not None:
+        block = raw[rows, cols]
+        _BYTES_READ[0] += block.nbytes
+        return block
+    got = read_tiff_window(src.path, rows, cols)
+    if got is None:  # not one single-page image: read whole
+        arr = tifffile.imread(src.path)
+        _BYTES_READ[0] += arr.nbytes
+        return (np.moveaxis(arr, 0, -1) if src.band_axis_first else arr)[rows, cols]
+    block, n_bytes = got
+    _BYTES_READ[0] += n_bytes
+    return block
 
-    Stored no-data values become NaN and stored values are divided by the source's scale. Values
-    outside the plausible range are counted in ``tally`` (brfgs.data.validation.RangeTally: those
-    below it masked, a frame with too many refused). The memory map is reopened for each block and
-    dropped after it, so the pages it touched leave the process's resident set: peak memory is one
-    block, not the cube.
-    """
+
+def iter_row_blocks(src: CubeSource, file_bands: np.ndarray, roi, factor: int, tally: RangeTally):
+    """Row blocks (r0, r1, float32 [r1 - r0, w, b]) of rows r0..r1 of the ROI read and area-averaged by
+    ``factor`` (:func:`read_block_averaged`, which collects them), at most ~``CHUNK_BYTES`` of stored
+    data each; the frame-level range check is the caller's (``tally.check``)."""
     x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
     out_h, out_w = rh // factor, rw // factor
     nb = len(file_bands)
-    out = np.empty((out_h, out_w, nb), dtype=np.float32)
     row_bytes = src.samples * src.bands * 4 * factor
     rows_per_block = max(1, CHUNK_BYTES // max(1, row_bytes))
     contiguous = nb == src.bands and np.array_equal(file_bands, np.arange(src.bands))
+    for r0 in range(0, out_h, rows_per_block):
+        r1 = min(out_h, r0 + rows_per_block)
+        rows = slice(y0 + r0 * factor, y0 + r1 * factor)
+        block = _raw_window(src, rows, slice(x0, x0 + out_w * factor))
+        if not contiguous:
+            block = block[:, :, file_bands]
+        block = tally.add(_as_reflectance(block, src))
+        if factor > 1:
+            block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
+        yield r0, r1, block
+
+
+def for_each_block(src: CubeSource, file_bands: np.ndarray, roi, factor: int, tally: RangeTally, frame: str,
+                   visit, check: bool = True) -> None:
+    """``visit(r0, r1, block)`` for each row block of :func:`iter_row_blocks`, then the frame-level range
+    check (``tally.check``) unless ``check`` is False; a file that cannot be read gives UserError."""
     try:
-        for r0 in range(0, out_h, rows_per_block):
-            r1 = min(out_h, r0 + rows_per_block)
-            raw = _raw_array(src)
-            rows = slice(y0 + r0 * factor, y0 + r1 * factor)
-            cols = slice(x0, x0 + out_w * factor)
-            block = raw[rows, cols] if contiguous else raw[rows, cols][:, :, file_bands]
-            block = tally.add(_as_reflectance(block, src))
-            del raw
-            if factor > 1:
-                block = block.reshape(r1 - r0, factor, out_w, factor, nb).mean(axis=(1, 3), dtype=np.float64)
-            out[r0:r1] = block
-        tally.check(src.path, frame)
+        for r0, r1, block in iter_row_blocks(src, file_bands, roi, factor, tally):
+            visit(r0, r1, block)
+        if check:
+            tally.check(src.path, frame)
     except UserError:
         raise
     except (OSError, ValueError) as exc:
         raise UserError(f"frame '{frame}': could not read cube data ({exc})", file=src.path) from None
+
+
+def read_block_averaged(src: CubeSource, file_bands: np.ndarray, roi, factor: int, tally: RangeTally,
+                         frame: str, check: bool = True) -> np.ndarray:
+    """Read bands ``file_bands`` of the ROI and area-average by ``factor``, a row block at a time.
+
+    Stored no-data values become NaN and stored values are divided by the source's scale. Values
+    outside the plausible range are counted in ``tally`` (brfgs.data.validation.RangeTally: those
+    below it masked, a frame with too many refused unless ``check`` is False: a window of a frame,
+    whose share says nothing of the frame's). The memory map is reopened for each block and
+    dropped after it, so the pages it touched leave the process's resident set: peak memory is one
+    block, not the cube. Only the ROI's rows (and, by memory map or TIFF segment, its columns) are read.
+    """
+    x0, y0, rw, rh = roi if roi is not None else (0, 0, src.samples, src.lines)
+    out = np.empty((rh // factor, rw // factor, len(file_bands)), dtype=np.float32)
+
+    def put(r0: int, r1: int, block: np.ndarray) -> None:
+        out[r0:r1] = block
+
+    for_each_block(src, file_bands, roi, factor, tally, frame, put, check)
     return out
 
 

@@ -21,38 +21,20 @@ from pathlib import Path
 import numpy as np
 
 from brfgs.data import validation as V
-from brfgs.data.angles import angles_from_direction, direction_from_angles_deg
-from brfgs.data.cameras import Intrinsics, camera_centre, pose_from_view_angles, viewmat_from_c2w
-from brfgs.data.cube_io import CubeSource, open_cube, read_block_averaged
+from brfgs.data.angles import direction_from_angles_deg
+from brfgs.data.cameras import Intrinsics, camera_centre, viewmat_from_c2w
+from brfgs.data.cube_io import CubeSource, for_each_block, open_cube, read_block_averaged
+from brfgs.data.noise import dark_sigma
 from brfgs.data.validation import RangeTally
 from brfgs.data.georef import Origin, read_georef
 from brfgs.data.sky import clear_sky_diffuse_fraction, read_diffuse_fraction, read_frame_diffuse_fraction
 from brfgs.data.sun import frame_suns
-from brfgs.data.undistort import DIST_KEYS, FrameCamera, read_frame_camera, resample_cube
+from brfgs.data.frame import TRANSFORMS, Frame, read_frames
+from brfgs.data.undistort import DIST_KEYS, read_frame_camera, resample_cube
 from brfgs.data.splits import DEFAULT_SPLIT_RULE, SPLIT_RULES, assign_split, nearest_view_angle_deg, ring_name, view_rings
 from brfgs.errors import UserError
 
-TRANSFORMS = "transforms.json"
 DEFAULT_VALUE_RANGE = (-0.5, 10.0)
-
-
-@dataclass
-class Frame:
-    """One image of the acquisition."""
-
-    name: str
-    path: Path                      # cube file (header for ENVI)
-    c2w: np.ndarray                 # [4, 4] OpenGL camera-to-world
-    view_zenith_deg: float
-    view_azimuth_deg: float
-    split: str                      # "train" | "validation" | "test"
-    split_given: bool = False       # True if transforms.json fixed it
-    camera: FrameCamera | None = None   # its own (distorted or other) camera, resampled on reading
-    sun_zenith_deg: float = float("nan")    # the sun of this frame (brfgs.data.sun)
-    sun_azimuth_deg: float = float("nan")
-    time_utc: str | None = None
-    irradiance_scale: float = 1.0           # downwelling irradiance / nominal (sensor or panel): images are divided
-    diffuse_fraction: np.ndarray | None = None  # [B] its own sky share of the irradiance (else the scene's)
 
 
 @dataclass
@@ -205,15 +187,90 @@ class Scene:
         file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
         tally = RangeTally(self.value_range)
         cube = self._read(i, src, file_bands, tally)
-        if self.frames[i].irradiance_scale != 1.0:   # reflectance under the nominal irradiance
-            cube /= np.float32(self.frames[i].irradiance_scale)
-        n_bad = int((~np.isfinite(cube)).any(-1).sum())
+        n_bad = self._finish(i, cube)
         if bands is None:
             self.invalid_counts[self.frames[i].name] = n_bad
             self.bright_counts[self.frames[i].name] = tally.n_high
-        if n_bad:
-            cube[~np.isfinite(cube)] = np.nan
         return cube
+
+    def _finish(self, i: int, cube: np.ndarray) -> int:
+        """Frame ``i``'s irradiance scale divided out of ``cube`` [h, w, b] in place, NaN where not
+        finite; returns the number of pixels with a value that is not."""
+        if self.frames[i].irradiance_scale != 1.0:   # reflectance under the nominal irradiance
+            cube /= np.float32(self.frames[i].irradiance_scale)
+        bad = ~np.isfinite(cube)
+        n_bad = int(bad.any(-1).sum())
+        if n_bad:
+            cube[bad] = np.nan
+        return n_bad
+
+    def load_window(self, i: int, window: tuple[int, int, int, int], bands=None) -> np.ndarray:
+        """``load_image(i, bands)[y0:y0 + h, x0:x0 + w]`` (float32 [h, w, b], the same values) reading only
+        the window ``window`` = (x0, y0, w, h) of the loaded image (its rows, and by memory map or TIFF
+        strip/tile its columns). The frame-level range check is not made here (a window's share says
+        nothing of the frame's): :meth:`check_image` makes it. A frame with its own camera is read whole
+        and resampled, then cropped."""
+        x0, y0, w, h = (int(v) for v in window)
+        if not (0 <= x0 and 0 <= y0 and w >= 1 and h >= 1 and x0 + w <= self.width and y0 + h <= self.height):
+            raise ValueError(f"window {window} outside the {self.width}x{self.height} image")
+        src, cam = self._sources[i], self.frames[i].camera
+        if cam is not None and (src.lines, src.samples) == (cam.intrinsics.h, cam.intrinsics.w):
+            return self.load_image(i, bands)[y0:y0 + h, x0:x0 + w]
+        file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
+        f = self.downscale
+        rx, ry = self.roi[:2] if self.roi is not None else (0, 0)
+        cube = read_block_averaged(src, file_bands, (rx + x0 * f, ry + y0 * f, w * f, h * f), f,
+                                   RangeTally(self.value_range), self.frames[i].name, check=False)
+        self._finish(i, cube)
+        return cube
+
+    def load_reduced(self, i: int, factor: int, bands=None) -> np.ndarray:
+        """Frame ``i`` area-averaged by a further integer ``factor`` while it is read (float32
+        [H // factor, W // factor, b]; the whole-frame checks of :meth:`load_image`; no cube of the
+        loaded size is held). A frame with its own camera is loaded, then averaged."""
+        h, w = self.height // factor, self.width // factor
+        src, cam = self._sources[i], self.frames[i].camera
+        if cam is not None and (src.lines, src.samples) == (cam.intrinsics.h, cam.intrinsics.w):
+            cube = self.load_image(i, bands)[:h * factor, :w * factor]
+            return cube.reshape(h, factor, w, factor, -1).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
+        file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
+        f = self.downscale * factor
+        rx, ry = self.roi[:2] if self.roi is not None else (0, 0)
+        cube = read_block_averaged(src, file_bands, (rx, ry, w * f, h * f), f, RangeTally(self.value_range),
+                                   self.frames[i].name)
+        self._finish(i, cube)
+        return cube
+
+    def check_image(self, i: int, bands=None) -> None:
+        """The checks :meth:`load_image` makes of frame ``i`` (UserError for too many values outside the
+        range; with ``bands`` None, its counts of invalid and bright pixels recorded) reading it a row
+        block at a time, without holding it (:meth:`scan_image`)."""
+        self.scan_image(i, bands)
+
+    def scan_image(self, i: int, bands=None, visit=None) -> None:
+        """Frame ``i`` a row block at a time: ``visit(r0, r1, block)`` with rows r0..r1 of what
+        :meth:`load_image` returns (float32 [r1 - r0, W, b], the same values), then its checks (see
+        :meth:`check_image`). A frame with its own camera is loaded whole (one block)."""
+        src, cam = self._sources[i], self.frames[i].camera
+        if cam is not None and (src.lines, src.samples) == (cam.intrinsics.h, cam.intrinsics.w):
+            cube = self.load_image(i, bands)
+            if visit is not None:
+                visit(0, cube.shape[0], cube)
+            return
+        file_bands = self.band_indices if bands is None else self.band_indices[np.asarray(bands, dtype=int)]
+        tally = RangeTally(self.value_range)
+        n_bad = [0]
+
+        def each(r0: int, r1: int, block: np.ndarray) -> None:
+            block = np.array(block, np.float32)
+            n_bad[0] += self._finish(i, block)
+            if visit is not None:
+                visit(r0, r1, block)
+
+        for_each_block(src, file_bands, self.roi, self.downscale, tally, self.frames[i].name, each)
+        if bands is None:
+            self.invalid_counts[self.frames[i].name] = n_bad[0]
+            self.bright_counts[self.frames[i].name] = tally.n_high
 
     def load_truth(self, i: int) -> np.ndarray | None:
         """Clean truth cube [H, W, B] of frame ``i`` from ``truth/images`` (simulated scenes), or None.
@@ -286,7 +343,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
     origin, crs = read_georef(meta, tf)
     band_idx = _band_subset(bands, len(wl_all))
     intr, roi = _crop_and_scale(full_intr, roi, downscale)
-    frames, sources = _read_frames(root, tf, _required(meta, "frames", tf), wl_all, (full_intr, cam_keys),
+    frames, sources = read_frames(root, tf, _required(meta, "frames", tf), wl_all, (full_intr, cam_keys),
                                    allow_outside_links)
     zen, azi, sun_zen, sun_az, times = frame_suns(meta, origin, tf)
     for k, (f, z, a, t) in enumerate(zip(frames, zen, azi, times)):
@@ -302,7 +359,7 @@ def read_scene(path: str | Path, *, downscale: int = 1, bands: list[int] | np.nd
         raise UserError("every frame is marked 'test'; at least one training frame is needed", file=tf,
                         field="frames[].split")
 
-    sigma_all, source = _dark_sigma(root, meta, tf, wl_all, sources, (value_range, allow_outside_links))
+    sigma_all, source = dark_sigma(root, meta, tf, wl_all, sources, (value_range, allow_outside_links))
     diffuse_all, diffuse_source = read_diffuse_fraction(meta, tf, wl_all, sun_zen, origin.altitude_m if origin else 0)
     return Scene(root=root, name=root.resolve().name, wavelengths_nm=wl_all[band_idx],
                  fwhm_nm=None if fwhm_all is None else fwhm_all[band_idx], band_indices=band_idx,
@@ -385,116 +442,3 @@ def _crop_and_scale(full_intr: Intrinsics, roi, downscale: int) -> tuple[Intrins
     if intr.w // downscale < 1 or intr.h // downscale < 1:
         raise UserError(f"downscale {downscale} leaves no pixels of a {intr.w}x{intr.h} image", field="downscale")
     return intr.scaled(downscale), roi
-
-
-def _read_frames(root: Path, tf: Path, frames_meta, wl_all: np.ndarray, cameras: tuple[Intrinsics, dict],
-                 allow_outside_links: bool = False) -> tuple[list[Frame], list[CubeSource]]:
-    """Frames of transforms.json (poses, nominal angles, requested split) and how to read their cubes."""
-    if not isinstance(frames_meta, list):
-        raise UserError("expected a list of frames", file=tf, field="frames")
-    if len(frames_meta) < V.MIN_FRAMES:
-        raise UserError(f"found {len(frames_meta)} frames, at least {V.MIN_FRAMES} are needed for a "
-                        f"multi-angle reconstruction", file=tf, field="frames")
-    frames: list[Frame] = []
-    sources: list[CubeSource] = []
-    names: set[str] = set()
-    for k, fm in enumerate(frames_meta):
-        frame, src = _read_frame(root, tf, k, fm, names, wl_all, (*cameras, allow_outside_links))
-        frames.append(frame)
-        sources.append(src)
-    return frames, sources
-
-
-def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.ndarray,
-                camera: tuple[Intrinsics, dict, bool]) -> tuple[Frame, CubeSource]:
-    """Frame ``k`` of transforms.json and its cube source; adds its name to ``names``.
-    ``camera``: (full-resolution pinhole intrinsics, top-level camera keys, allow_outside_links)."""
-    full_intr, cam_keys, allow_outside_links = camera
-    fld = f"frames[{k}]"
-    if not isinstance(fm, dict):
-        raise UserError("expected an object", file=tf, field=fld)
-    if "file_path" not in fm:
-        raise UserError("required field missing", file=tf, field=f"{fld}.file_path")
-    cube_path = V.path_inside(root, fm["file_path"], tf, f"{fld}.file_path", allow_outside_links)
-    name = Path(fm["file_path"]).stem
-    if name in names:
-        raise UserError(f"duplicate frame name {name!r}", file=tf, field=f"{fld}.file_path")
-    names.add(name)
-    fld = f"frames[{k}] ('{name}')"
-    vz = va = None
-    if fm.get("view_zenith_deg") is not None:
-        vz = V.number(fm["view_zenith_deg"], tf, f"{fld}.view_zenith_deg", lo=0.0, hi=89.999)
-    if fm.get("view_azimuth_deg") is not None:
-        va = V.number(fm["view_azimuth_deg"], tf, f"{fld}.view_azimuth_deg", lo=-360.0, hi=360.0)
-    if fm.get("transform_matrix") is not None:
-        c2w = V.transform_matrix(fm["transform_matrix"], tf, f"{fld}.transform_matrix")
-    else:
-        if vz is None or va is None or fm.get("distance_m") is None:
-            raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
-                            "distance_m", file=tf, field=fld)
-        dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=1e-6)
-        c2w = pose_from_view_angles(vz, va, dist)
-    if vz is None or va is None:  # derive nominal angles from the camera centre
-        zr, ar = angles_from_direction(c2w[:3, 3])
-        vz, va = float(np.degrees(zr)), float(np.degrees(ar))
-    split = fm.get("split")
-    if split is not None and split not in ("train", "test"):
-        raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")
-    src = open_cube(cube_path, wl_all, tf, name, allow_outside_links)
-    own = read_frame_camera(fm, tf, f"{fld}.", cam_keys)
-    w, h = own.intrinsics.w, own.intrinsics.h
-    if (src.lines, src.samples) != (h, w):
-        raise UserError(f"cube is {src.samples}x{src.lines} pixels but {TRANSFORMS} gives w={w}, h={h}; "
-                        f"the intrinsics do not fit this image", file=cube_path, field="samples/lines")
-    own = None if own.is_pinhole_like(full_intr) else own
-    return Frame(name, cube_path, c2w, vz, va, split or "", split is not None, own), src
-
-
-def _dark_sigma(root: Path, meta: dict, tf: Path, wl: np.ndarray, sources: list[CubeSource],
-                reading: tuple) -> tuple[np.ndarray, str]:
-    """σ_b [B]: std over dark frames and pixels; else ``dark_sigma``; else estimated from the images.
-    ``reading``: (plausible value range, allow_outside_links); dark-frame values must lie in the range."""
-    value_range, allow = reading
-    n_bands = len(wl)
-    listed = meta.get("dark_frames")
-    if listed is not None:
-        if not isinstance(listed, list):
-            raise UserError("expected a list of paths", file=tf, field="dark_frames")
-        paths = [V.path_inside(root, p, tf, f"dark_frames[{i}]", allow) for i, p in enumerate(listed)]
-    else:
-        paths = sorted((root / "calibration").glob("dark_*.hdr")) if (root / "calibration").is_dir() else []
-    if paths:
-        s1 = np.zeros(n_bands)
-        s2 = np.zeros(n_bands)
-        n = 0
-        for p in paths:
-            src = open_cube(p, wl, tf, f"dark frame {p.name}", allow)
-            cube = read_block_averaged(src, np.arange(n_bands), None, 1, RangeTally(value_range), p.name)
-            cube = cube.reshape(-1, n_bands).astype(np.float64)
-            cube = cube[np.isfinite(cube).all(1)]
-            s1 += cube.sum(0)
-            s2 += (cube * cube).sum(0)
-            n += len(cube)
-        if n < 2:
-            raise UserError("dark frames contain no finite pixels", file=paths[0])
-        var = np.maximum(s2 / n - (s1 / n) ** 2, 0.0) * n / (n - 1)
-        return np.sqrt(var), "dark_frames"
-    if meta.get("dark_sigma") is not None:
-        sig = V.number_list(meta["dark_sigma"], tf, "dark_sigma", length=n_bands)
-        if np.any(sig < 0):
-            raise UserError("dark_sigma values must be >= 0", file=tf, field="dark_sigma")
-        return sig, "transforms.json"
-    return _estimate_sigma(sources[: min(3, len(sources))], n_bands, value_range), "estimated"
-
-
-def _estimate_sigma(sources: list[CubeSource], n_bands: int, value_range) -> np.ndarray:
-    """Per-band noise σ from images (no dark frames): robust MAD of a 3×3 Laplacian residual (Immerkær 1996)."""
-    ests = []
-    for src in sources:
-        cube = read_block_averaged(src, np.arange(n_bands), None, 1, RangeTally(value_range), src.path.stem)
-        lap = (4 * cube[1:-1, 1:-1] - cube[:-2, 1:-1] - cube[2:, 1:-1] - cube[1:-1, :-2] - cube[1:-1, 2:])
-        lap = lap.reshape(-1, n_bands)
-        lap = lap[np.isfinite(lap).all(1)]
-        # std of 4x - 4 neighbours for i.i.d. noise σ is sqrt(20) σ; MAD → σ via 1.4826
-        ests.append(1.4826 * np.median(np.abs(lap - np.median(lap, 0)), 0) / np.sqrt(20.0))
-    return np.median(np.stack(ests), 0)

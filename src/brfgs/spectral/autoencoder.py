@@ -134,7 +134,9 @@ def autoencoder_loss(recon: torch.Tensor, target: torch.Tensor, sam_weight: floa
 def sample_pixels(images, n_pixels: int, seed: int) -> np.ndarray:
     """Sample up to ``n_pixels`` finite spectra ``[n, B]`` (float32) from an iterable of [H,W,B] cubes.
 
-    ``images`` is a list of callables or arrays; pixels are spread evenly over images.
+    ``images`` is a list of callables or arrays; pixels are spread evenly over images. A callable may
+    also return a frame read by row blocks (:class:`brfgs.data.pixels.FramePixels`: ``valid()`` its
+    mask, ``take(flat)`` the chosen pixels): the same pixels are drawn without the cube in memory.
     """
     rng = np.random.default_rng(seed)
     n_img = len(images)
@@ -142,12 +144,16 @@ def sample_pixels(images, n_pixels: int, seed: int) -> np.ndarray:
     out = []
     for item in images:
         cube = item() if callable(item) else item
-        flat = cube.reshape(-1, cube.shape[-1])
-        ok = np.flatnonzero(np.isfinite(flat).all(-1))
+        streamed = not isinstance(cube, np.ndarray)
+        if streamed:
+            ok = np.flatnonzero(cube.valid().ravel())
+        else:
+            flat = cube.reshape(-1, cube.shape[-1])
+            ok = np.flatnonzero(np.isfinite(flat).all(-1))
         if ok.size == 0:
             continue
-        pick = rng.choice(ok, size=min(per, ok.size), replace=False)
-        out.append(np.asarray(flat[np.sort(pick)], np.float32))
+        pick = np.sort(rng.choice(ok, size=min(per, ok.size), replace=False))
+        out.append(cube.take(pick) if streamed else np.asarray(flat[pick], np.float32))
     if not out:
         raise ValueError("no finite pixels to train the spectral autoencoder on")
     return np.concatenate(out, 0)

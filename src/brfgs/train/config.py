@@ -78,7 +78,8 @@ class TrainConfig:
     schedule_ref_views: int = _opt(17, "Steps and Gaussian caps grow with the training views beyond this many (0 = "
                                    "as given).", panel=SCHEDULE)
     strategy: str = _opt("adc", "Densification: adc (3DGS clone/split/prune) or mcmc (3DGS-MCMC).", panel=SCHEDULE)
-    max_gaussians: int = _opt(60_000, "Never grow beyond this many Gaussians.", panel=SCHEDULE)
+    max_gaussians: int = _opt(0, "Never grow beyond this many Gaussians (0 = follow the image: 60,000 up to 128² "
+                              "pixels, growing with the pixel count above, at most 3,000,000).", panel=SCHEDULE)
     # -- the losses' weights
     alpha_dssim: float = _opt(0.2, "Weight of D-SSIM in the geometry loss (paper eq. 24).", panel=LOSSES)
     beta_cos: float = _opt(0.5, "Weight of the spectral cosine loss in the reflectance loss (eq. 25).", panel=LOSSES)
@@ -157,7 +158,8 @@ class TrainConfig:
     mcmc: MCMCConfig = _x(MCMCConfig(), "3DGS-MCMC densification (--strategy mcmc).")
     patch_px: int = _x(256, "Train on random patches of this size when an image is larger (0 = whole images).")
     stage2_rays: int = _x(0, "Stage 2 scores this many random pixels of each view (0 = all).")
-    cache_gib: float = _x(4.0, "Keep training cubes in memory up to this size (GiB), else read them per step.")
+    cache_gib: float = _x(4.0, "Hold whole training cubes in memory up to this size (GiB; the least recently used "
+                          "leave first); other frames are read per step, only the patch's window.")
     log_every: int = _x(10, "Steps between rows of train_log.csv.")
     allow_outside_links: bool = _x(False, "Read files that links in the scene folder lead to outside it.",
                                    "--allow-outside-links/--confine-to-scene")
@@ -197,9 +199,12 @@ class TrainConfig:
         if self.lambda_dense_depth > 0 and (self.init_fill == "surface" or self.init_fill_points <= 0):
             raise UserError("the dense-depth loss needs the depth maps of --init-fill mvs or truth (with "
                             "--init-fill-points > 0)", field="lambda_dense_depth")
-        for name in ("views_per_step", "checkpoint_every", "max_gaussians"):
+        for name in ("views_per_step", "checkpoint_every"):
             if getattr(self, name) < 1:
                 raise UserError(f"{name} must be >= 1, got {getattr(self, name)}", field=name)
+        if self.max_gaussians < 0:
+            raise UserError(f"max_gaussians must be >= 1, or 0 to follow the image, got {self.max_gaussians}",
+                            field="max_gaussians")
         if not (math.isfinite(self.cache_gib) and self.cache_gib >= 0):
             raise UserError(f"cache_gib must be >= 0, got {self.cache_gib}", field="cache_gib")
         if not 0 < self.init_opacity < 1:
@@ -315,3 +320,23 @@ def scaled_schedule(cfg: "TrainConfig", n_train_views: int) -> "TrainConfig":
     return replace(cfg, stage1_steps=int(round(cfg.stage1_steps * s)), stage2_steps=int(round(cfg.stage2_steps * s)),
                    max_gaussians_per_px=round(cfg.max_gaussians_per_px * s, 4),
                    **{key: replace(sub, refine_stop=int(round(sub.refine_stop * s)))}, schedule_ref_views=0)
+
+
+# The cap on the Gaussians when max_gaussians is 0: AUTO_GAUSSIANS up to AUTO_GAUSSIANS_REF_PX pixels per
+# image (128², where it was chosen), in proportion to the pixel count above, at most AUTO_GAUSSIANS_MAX
+# (≈ 1.6 kB per Gaussian for parameters, gradients and Adam's moments: ≈ 4.8 GB; docs/scaling.md).
+AUTO_GAUSSIANS = 60_000
+AUTO_GAUSSIANS_REF_PX = 128 * 128
+AUTO_GAUSSIANS_MAX = 3_000_000
+
+
+def auto_max_gaussians(width: int, height: int) -> int:
+    """The cap on the Gaussians for training images of ``width`` x ``height`` px when max_gaussians is 0."""
+    grown = AUTO_GAUSSIANS * width * height // AUTO_GAUSSIANS_REF_PX
+    return int(min(AUTO_GAUSSIANS_MAX, max(AUTO_GAUSSIANS, grown)))
+
+
+def with_gaussian_cap(cfg: "TrainConfig", width: int, height: int) -> "TrainConfig":
+    """``cfg`` with max_gaussians 0 replaced by :func:`auto_max_gaussians` of the training images
+    (``cfg`` itself when a cap is given)."""
+    return cfg if cfg.max_gaussians > 0 else replace(cfg, max_gaussians=auto_max_gaussians(width, height))

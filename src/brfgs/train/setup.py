@@ -14,6 +14,7 @@ from brfgs.brdf.geometry import gaussian_normals
 from brfgs.brdf.head import init_head_params
 from brfgs.data.cir import cir_band_indices, cir_scale
 from brfgs.data import atomic
+from brfgs.data.pixels import FramePixels
 from brfgs.errors import UserError
 from brfgs.init import initialize
 from brfgs.init.mvs import MVSConfig, dense_cloud, write_dense_ply
@@ -144,7 +145,7 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
     autoencoder (eq. 9) or, with ``spectral_basis`` linear, the linear basis (PCA noise-weighted by the
     scene's dark-frame σ_b, :func:`brfgs.spectral.linear_basis.fit_linear_basis`)."""
     full = images("full")
-    loaders = [(lambda i=i: full.get_with_nan(i)) for i in scene.train_indices]
+    loaders = [(lambda i=i: full.for_sampling(i)) for i in scene.train_indices]   # held, or read by row blocks
     pix = sample_pixels(loaders, cfg.ae_max_pixels, cfg.seed)
     if cfg.spectral_basis == "linear":
         if cfg.latent_dim > pix.shape[1]:
@@ -162,7 +163,7 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
     report = {"config": acfg, "loss_first": hist[0] if hist else None, "loss_last": hist[-1] if hist else None,
               "train": evaluate_autoencoder(state.decoder, pix)}
     if scene.test_indices:
-        test = [(lambda i=i: scene.load_image(i)) for i in scene.test_indices]
+        test = [FramePixels(scene, i) for i in scene.test_indices]                 # read by row blocks
         report["test"] = evaluate_autoencoder(state.decoder, sample_pixels(test, min(cfg.ae_max_pixels, 50_000), cfg.seed + 1))
     folder.write_json("autoencoder.json", report)
     state.meta["autoencoder_report"] = report
@@ -172,10 +173,11 @@ def fit_autoencoder(state: TrainState, scene, cfg: TrainConfig, images: TrainIma
 
 
 @torch.no_grad()
-def view_light(state: TrainState, i: int, backend: str = "auto") -> Tensor:  # [H, W, B]
-    """The sun and sky illumination (1 − f_b) V + f_b of training view ``i``'s pixels, V the
-    Gaussians' direct-sun visibility under its sun blended by the view (the background lit), f_b its sky's."""
-    g, cam = state.gaussians, state.cameras[i]
+def view_light(state: TrainState, i: int, backend: str = "auto", cam=None) -> Tensor:  # [H, W, B]
+    """The sun and sky illumination (1 − f_b) V + f_b of training view ``i``'s pixels (those ``cam`` sees:
+    a window's camera; default the view's), V the Gaussians' direct-sun visibility under its sun blended
+    by the view (the background lit), f_b its sky's."""
+    g, cam = state.gaussians, state.cameras[i] if cam is None else cam
     out = rasterize_splats(g.means.detach(), g.quats.detach(), g.scales.detach(), g.opacities.detach(),
                            state.sun_visibility(i)[:, None], cam, backend, state.cfg.antialias,
                            supersample=state.cfg.supersample)
@@ -193,7 +195,7 @@ def init_head(state: TrainState, cfg: TrainConfig, scene, images: TrainImages) -
     else:
         if cfg.shadows:  # the lit surface's reflectance: each view's image over its sun and sky light
             refl = backprojected_reflectance(gm, images("full"), cams, scene.train_indices,
-                                             lambda i: view_light(state, i, cfg.backend), backend=cfg.backend,
+                                             lambda i, cam: view_light(state, i, cfg.backend, cam), backend=cfg.backend,
                                              antialiased=cfg.antialias, supersample=cfg.supersample)
             base = encode_spectra(state.decoder, refl)
         else:

@@ -64,14 +64,14 @@ def pick_view(state: TrainState, train_indices: list[int], width: int, height: i
 
 
 def make_batch(state: TrainState, images: TrainImages, phase: Phase, i: int, window) -> Batch:
-    """The camera and target of view ``i`` for ``phase``, cropped to ``window``."""
+    """The camera and target of view ``i`` for ``phase``, cropped to ``window`` (x0, y0, w, h)."""
     cam = state.cameras[i]
     kind = {Phase.STAGE1: "colors", Phase.CIR: "cir"}.get(phase, "full")
-    target, valid = images(kind).get(i)
-    if window is not None:
-        x0, y0, w, h = window
-        cam = cam.crop(x0, y0, w, h)
-        target, valid = target[y0 : y0 + h, x0 : x0 + w], valid[y0 : y0 + h, x0 : x0 + w]
+    if window is None:
+        target, valid = images(kind).get(i)
+    else:                   # the window alone (read from the file when the frame is not cached)
+        cam = cam.crop(*window)
+        target, valid = images(kind).get_window(i, window)
     return Batch(i, cam, target, valid, window, kind)
 
 

@@ -78,10 +78,10 @@ def backprojected_targets(model: GaussianModel, store: ImageStore, cams: list[Ca
     """
     def views():
         for i in indices:
-            img, valid = store.get(i)
-            with torch.no_grad():
-                t = encode(img) if encode is not None else img
-            yield cams[i], torch.cat([t * valid[..., None], valid[..., None].float()], -1)  # [H, W, C+1]
+            for cam, img, valid in store.tiles(i, cams[i]):   # the whole view, or windows of a large one
+                with torch.no_grad():
+                    t = encode(img) if encode is not None else img
+                yield cam, torch.cat([t * valid[..., None], valid[..., None].float()], -1)  # [H, W, C+1]
 
     acc = _blend_weighted_sums(model, views(), backend, antialiased, supersample)
 
@@ -99,16 +99,17 @@ def backprojected_reflectance(model: GaussianModel, store: ImageStore, cams: lis
                               light_of, backend: str = "auto", antialiased: bool = False,
                               supersample: int = 1) -> Tensor:  # [N, B]
     """Per-Gaussian reflectance of the lit surface [N, B] from images taken under a known
-    illumination ``light_of(i) -> [H, W, B]`` (relative to the open sky): per band the
+    illumination ``light_of(i, cam) -> [h, w, B]`` of view ``i`` seen by ``cam`` (the view's camera or a
+    window's; relative to the open sky): per band the
     least-squares fit of t_p ≈ ρ_k L_p over the pixels each Gaussian blends into, weighted by the
     blending weights, ρ_k = Σ_p w_kp L_p t_p / Σ_p w_kp L_p² (a shadowed pixel, L small, counts
     little: its ρ estimate t / L carries the noise divided by L). Gaussians that no view sees fall
     back to the centre-projection mean (:func:`projected_targets`)."""
     def views():
         for i in indices:
-            img, valid = store.get(i)
-            light = light_of(i) * valid[..., None]  # [H, W, B]
-            yield cams[i], torch.cat([torch.nan_to_num(img) * light, light * light], -1)  # [H, W, 2B]
+            for cam, img, valid in store.tiles(i, cams[i]):   # the whole view, or windows of a large one
+                light = light_of(i, cam) * valid[..., None]  # [H, W, B]
+                yield cam, torch.cat([torch.nan_to_num(img) * light, light * light], -1)  # [H, W, 2B]
 
     acc = _blend_weighted_sums(model, views(), backend, antialiased, supersample)
     b = acc.shape[1] // 2

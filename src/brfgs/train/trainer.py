@@ -36,7 +36,7 @@ from brfgs.data.paths import check_outside
 from brfgs.errors import UserError
 from brfgs.model import DensifyState, NamedAdam
 from brfgs.render import configure_threads
-from brfgs.train.config import TrainConfig, scaled_schedule
+from brfgs.train.config import TrainConfig, scaled_schedule, with_gaussian_cap
 from brfgs.train.distributed import Comm, check_identical, check_views_per_step, launch, reduce_gradients, shard
 from brfgs.train.images import TrainImages
 from brfgs.train.phases import Phase, next_phase, run_plan
@@ -138,11 +138,12 @@ class Trainer:
         return path
 
     def _scale_schedule(self) -> None:
-        """Train with the schedule scaled to the number of training views (config.json keeps the
-        options as given; checkpoints, the model file and run.json hold the values used)."""
+        """Train with the schedule scaled to the number of training views and the Gaussian cap to the
+        image size when it is 0 (config.json keeps the options as given; checkpoints, the model file and
+        run.json hold the values used)."""
         n_train = len(self.scene.train_indices)
         given = self.cfg
-        self.cfg = scaled_schedule(given, n_train)
+        self.cfg = with_gaussian_cap(scaled_schedule(given, n_train), self.scene.width, self.scene.height)
         self.state.cfg = self.cfg
         self.phases = run_plan(self.cfg)
         self.schedule = {"n_train_views": n_train, "ref_views": given.schedule_ref_views,
