@@ -161,3 +161,19 @@ def test_read_only_output_folder_is_exit_3(scene, tmp_path, capsys, monkeypatch)
     err = capsys.readouterr().err.strip()
     assert err == f"brfgs: error: {ro / 'run'}: Read-only file system"
     assert not ro.exists()
+
+
+def test_a_run_started_with_a_fixed_cap_resumes_with_it_under_the_image_following_default(scene, tmp_path):
+    """An unfinished run started with a fixed Gaussian cap (every run before the cap followed the image
+    recorded 60,000) resumes under today's default (``max_gaussians`` 0) with its own cap: the model
+    equals the uninterrupted run's, and config.json keeps the cap. Another fixed cap is still refused."""
+    run, ref = tmp_path / "run", tmp_path / "ref"
+    with pytest.raises(KeyboardInterrupt):
+        train(scene, run, _cfg(max_gaussians=60000), progress=False, callback=_interrupt_at(("stage1", 7)), log=None)
+    with pytest.raises(UserError, match="max_gaussians"):
+        train(scene, run, _cfg(max_gaussians=6000), progress=False, log=None)
+    train(scene, run, _cfg(max_gaussians=0), progress=False, log=None)
+    assert json.loads((run / "config.json").read_text())["max_gaussians"] == 60000
+    train(scene, ref, _cfg(max_gaussians=60000), progress=False, log=None)
+    ta, tb = load(run / "model.safetensors")[0], load(ref / "model.safetensors")[0]
+    assert ta.keys() == tb.keys() and [k for k in ta if not torch.equal(ta[k], tb[k])] == []

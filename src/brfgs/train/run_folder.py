@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 from brfgs.data import atomic
@@ -93,6 +94,19 @@ class RunFolder:
                 raise UserError(f"this unfinished run was started with different options ({', '.join(diff)}); "
                                 "rerun with the same options to resume, or pass --overwrite", file=config)
         atomic.write_json(config, cfg.to_dict(), sort_keys=True)
+
+    def started_cap(self, cfg: TrainConfig) -> TrainConfig:
+        """``cfg`` with the fixed Gaussian cap of the unfinished run it resumes, when ``cfg`` leaves the cap
+        to follow the image (``max_gaussians`` 0): a run started with a cap (as every run was before the cap
+        followed the image) finishes with it. Unchanged when there is nothing to resume."""
+        config = self.out / CONFIG_FILE
+        if cfg.max_gaussians != 0 or not config.is_file() or not self.resume_points():
+            return cfg
+        try:
+            started = TrainConfig.from_run_config(config).max_gaussians
+        except UserError:
+            return cfg  # prepare() reports the damaged file
+        return replace(cfg, max_gaussians=started) if started > 0 else cfg
 
     def resume_points(self) -> list[Path]:
         """Existing resume checkpoints, newest first."""

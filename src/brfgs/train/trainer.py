@@ -64,7 +64,7 @@ class Trainer:
         self.scene_path = Path(scene_path)
         self.folder = RunFolder(out_dir)
         self.out = self.folder.out
-        self.cfg = cfg.validate()
+        self.cfg = self.folder.started_cap(cfg.validate())
         self.comm = comm or Comm()
         check_views_per_step(self.cfg.views_per_step, self.comm.world)
         self.overwrite = overwrite
@@ -73,7 +73,7 @@ class Trainer:
         self.from_stage1 = Path(from_stage1) if from_stage1 else None
         self.log = (log if self.comm.is_main else None) or (lambda *a, **k: None)
         self.state = TrainState(self.cfg)
-        self.phases = run_plan(cfg)
+        self.phases = run_plan(self.cfg)
         self.scene = None
         self.images: TrainImages | None = None
         self.history: list[tuple[str, int, float, float]] = []  # (phase, step, loss, psnr) of this process
