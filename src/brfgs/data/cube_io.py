@@ -14,7 +14,7 @@ import numpy as np
 import spectral.io.envi as envi
 import tifffile
 
-from brfgs.data.validation import RangeTally, confined, header_matches
+from brfgs.data.validation import RangeTally, ascii_float, confined, header_matches
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
 
@@ -107,8 +107,9 @@ def _header_int(hdr: dict, key: str, path: Path, lo: int) -> int:
     """An integer header field written as digits, >= ``lo``; UserError naming the field otherwise."""
     v = hdr.get(key)
     text = v.strip() if isinstance(v, str) else None
-    if text is None or not text.isdigit() or len(text) > 12 or int(text) < lo:
-        raise UserError(f"expected an integer >= {lo}, found {v!r}", file=path, field=key)
+    if text is None or not text.isascii() or not text.isdigit() or len(text) > 12 or int(text) < lo:
+        raise UserError(f"expected an integer >= {lo} written with the digits 0-9, found {str(v)[:40]!r}", file=path,
+                        field=key)
     return int(text)
 
 
@@ -116,12 +117,13 @@ def _header_number(value, path: Path, field: str, *, positive: bool = False, nan
     """A number from a header field (ENVI or a GeoTIFF's GDAL_NODATA); UserError naming the field otherwise."""
     text = value.strip() if isinstance(value, str) else value
     try:
-        x = float(text)
-    except (TypeError, ValueError):
+        x = ascii_float(text, non_finite=True)       # not float(): it reads other scripts' digits too
+    except ValueError:
         x = None
     if x is None or (np.isnan(x) and not nan_ok) or np.isinf(x) or (positive and not x > 0):
         want = "a positive number" if positive else "a number" + (" or nan" if nan_ok else "")
-        raise UserError(f"expected {want}, found {value!r}", file=path, field=field)
+        raise UserError(f"expected {want} written with the digits 0-9, found {str(value)[:40]!r}", file=path,
+                        field=field)
     return x
 
 
