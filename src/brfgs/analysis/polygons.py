@@ -62,6 +62,9 @@ def ring_area(ring_xy: np.ndarray) -> float:
 
 
 GEOJSON_SUFFIXES = (".geojson", ".json")
+# |x|, |y| of an ROI vertex: ENU metres (or lon/lat degrees). No polygon beyond 10,000 km can lie over a
+# scene (its cameras are within 100 km of the origin), and areas of larger coordinates overflow.
+MAX_COORDINATE = 1.0e7
 _LOCAL_CRS_WORDS = ("enu", "local")
 
 
@@ -117,6 +120,10 @@ def _geojson_ring(ring, path: Path, where: str) -> np.ndarray:
         xy = [finite_number(c) for c in pos[:2]]
         if None in xy:
             raise UserError(f"non-finite or out-of-range coordinate {_short(pos)}", file=path, field=f"{where}[{k}]")
+        if max(abs(xy[0]), abs(xy[1])) > MAX_COORDINATE:
+            raise UserError(f"coordinate {_short(pos)} out of range: ROI coordinates are the scene's ENU metres (or "
+                            f"lon/lat degrees), at most {MAX_COORDINATE:.0e} in size", file=path,
+                            field=f"{where}[{k}]")
         pts.append((xy[0], xy[1]))
     v = np.array(pts, float).reshape(-1, 2)
     if len(v) >= 2 and np.array_equal(v[0], v[-1]):

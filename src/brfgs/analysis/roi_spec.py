@@ -26,7 +26,7 @@ import numpy as np
 from PIL import Image
 
 from brfgs.analysis.options import parse_floats
-from brfgs.analysis.polygons import GEOJSON_SUFFIXES, is_lonlat_crs, read_geojson_polygons
+from brfgs.analysis.polygons import GEOJSON_SUFFIXES, MAX_COORDINATE, is_lonlat_crs, read_geojson_polygons
 from brfgs.analysis.roi import ROI, PointSetROI, PolygonROI, material_points, roi_from_view_mask
 from brfgs.data.scene import Scene
 from brfgs.data.validation import read_json_file
@@ -81,6 +81,9 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
         xy = [parse_floats(p, "--roi") for p in pts]
         if len(xy) < 3 or any(len(v) != 2 for v in xy):
             raise UserError("polygon ROI: expected 'polygon:X1,Y1;X2,Y2;X3,Y3[;...]' (ENU metres)", field="--roi")
+        if max(abs(c) for v in xy for c in v) > MAX_COORDINATE:
+            raise UserError(f"polygon ROI: a coordinate is out of range: vertices are the scene's ENU metres, at most "
+                            f"{MAX_COORDINATE:.0e} in size", field="--roi")
         return ROISpec("polygon", name or "polygon", polygon_xy_m=np.array(xy))
     if kind in ("box", "mask"):
         view, _, arg = rest.partition(":")
