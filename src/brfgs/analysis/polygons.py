@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.data.validation import finite_number, read_json_file
+from brfgs.data.validation import finite_number, plain_text, read_json_file
 from brfgs.errors import UserError
 
 __all__ = ["points_in_polygon", "points_in_polygons", "ring_area", "GEOJSON_SUFFIXES", "read_geojson_polygons",
@@ -200,13 +200,15 @@ def read_geojson_polygons(path: str | Path) -> tuple[list[list[np.ndarray]], str
                 raise UserError("the Feature has no geometry", file=path, field=f"features[{i}].geometry")
             polys += _geojson_geometry(f["geometry"], path, f"features[{i}].geometry.")
         if len(feats) == 1 and isinstance(feats[0].get("properties"), dict):
-            name = feats[0]["properties"].get("name")
+            name, where = feats[0]["properties"].get("name"), "features[0].properties.name"
     elif t == "Feature":
         if data.get("geometry") is None:
             raise UserError("the Feature has no geometry", file=path, field="geometry")
         polys = _geojson_geometry(data["geometry"], path, "geometry.")
         if isinstance(data.get("properties"), dict):
-            name = data["properties"].get("name")
+            name, where = data["properties"].get("name"), "properties.name"
     else:
         polys = _geojson_geometry(data, path, "")
-    return polys, (str(name) if name not in (None, "") else None)
+    if name in (None, ""):
+        return polys, None
+    return polys, plain_text(name if isinstance(name, str) else json.dumps(name)[:200], path, where)

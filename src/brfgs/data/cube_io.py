@@ -7,6 +7,7 @@ layout and row blocks can be read from a memory map without touching the rest.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +18,9 @@ import tifffile
 from brfgs.data.validation import RangeTally, ascii_float, confined, header_matches
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
+
+# ENVI header keys are case-insensitive (docs/data-format.md): SPy's note that it lower-cased one is no news
+warnings.filterwarnings("ignore", message="Parameters with non-lowercase names", category=UserWarning)
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block

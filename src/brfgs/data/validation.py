@@ -211,6 +211,19 @@ def path_text(rel: object, file: Path, field: str) -> str:
     return rel
 
 
+def plain_text(value: str, file: Path | None, field: str, what: str = "name") -> str:
+    """``value`` unless it holds control characters or lone surrogates (it goes into titles, messages and
+    file names); UserError naming the file and the field otherwise."""
+    if CONTROL_CHARS.search(value):
+        raise UserError(f"the {what} {value[:80]!r} contains control characters", file=file, field=field)
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UserError(f"the {what} {value[:80]!r} is not valid Unicode (a lone surrogate)", file=file,
+                        field=field) from None
+    return value
+
+
 def confined(path: Path, root: Path, file: Path, field: str | None, allow_outside_links: bool) -> Path:
     """``path`` unless, after following links, it lies outside the scene folder ``root``."""
     if not allow_outside_links and not inside(path, root):
