@@ -432,17 +432,11 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
         if vz is None or va is None or fm.get("distance_m") is None:
             raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
                             "distance_m", file=tf, field=fld)
-        dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=V.MIN_CAMERA_DISTANCE_M,
-                        hi=V.MAX_CAMERA_DISTANCE_M)
-        c2w = pose_from_view_angles(vz, va, dist)
-    V.camera_position(c2w, tf, f"{fld}.transform_matrix")
+        c2w = pose_from_view_angles(vz, va, V.camera_distance(fm["distance_m"], tf, f"{fld}.distance_m"))
+    V.camera_position(c2w, tf, f"{fld}.transform_matrix", above_ground=vz is None or va is None)
     if vz is None or va is None:  # derive nominal angles from the camera centre
         zr, ar = angles_from_direction(c2w[:3, 3])
         vz, va = float(np.degrees(zr)), float(np.degrees(ar))
-        if not vz < 90.0:
-            raise UserError(f"the camera is at or below the ground plane (z = {c2w[2, 3]:.6g} m), where its view angles "
-                            "are undefined: give view_zenith_deg and view_azimuth_deg, or a camera above the scene",
-                            file=tf, field=f"{fld}.transform_matrix")
     split = fm.get("split")
     if split is not None and split not in ("train", "test"):
         raise UserError(f"split must be 'train' or 'test', found {split!r}", file=tf, field=f"{fld}.split")

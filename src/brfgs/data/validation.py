@@ -128,10 +128,16 @@ def transform_matrix(value, file: Path, field: str) -> np.ndarray:
     return m
 
 
-def camera_position(c2w: np.ndarray, file: Path, field: str) -> None:
+def camera_distance(value, file: Path, field: str) -> float:
+    """A frame's ``distance_m``: a number between MIN_CAMERA_DISTANCE_M and MAX_CAMERA_DISTANCE_M."""
+    return number(value, file, field, lo=MIN_CAMERA_DISTANCE_M, hi=MAX_CAMERA_DISTANCE_M)
+
+
+def camera_position(c2w: np.ndarray, file: Path, field: str, above_ground: bool = False) -> None:
     """UserError unless the camera centre of ``c2w`` [4, 4] lies between MIN_CAMERA_DISTANCE_M and
     MAX_CAMERA_DISTANCE_M from the scene origin (a camera on the scene centre has no view direction;
-    one farther than 100 km is not a camera of the scene: wrong units or an unaligned model)."""
+    one farther than 100 km is not a camera of the scene: wrong units or an unaligned model) and, with
+    ``above_ground`` (its view angles come from its position), above the ground plane z = 0."""
     centre = np.asarray(c2w, float)[:3, 3]
     far = float(np.abs(centre).max())                      # before the norm: 1e300 squared overflows
     dist = far if far > MAX_CAMERA_DISTANCE_M else float(np.linalg.norm(centre))
@@ -143,6 +149,10 @@ def camera_position(c2w: np.ndarray, file: Path, field: str) -> None:
         raise UserError(f"the camera is {dist:.4g} m from the scene origin, farther than the {MAX_CAMERA_DISTANCE_M / 1000:g}"
                         " km a camera of a scene may be; positions are ENU metres around the scene", file=file,
                         field=field)
+    if above_ground and not centre[2] > 0:
+        raise UserError(f"the camera is at or below the ground plane (z = {centre[2]:.6g} m), where its view angles "
+                        "are undefined: give view_zenith_deg and view_azimuth_deg, or a camera above the scene",
+                        file=file, field=field)
 
 
 def json_depth(obj) -> int:
