@@ -7,6 +7,7 @@ layout and row blocks can be read from a memory map without touching the rest.
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,8 +20,14 @@ from brfgs.data.validation import RangeTally, ascii_float, confined, header_matc
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
 
-# ENVI header keys are case-insensitive (docs/data-format.md): SPy's note that it lower-cased one is no news
-warnings.filterwarnings("ignore", message="Parameters with non-lowercase names", category=UserWarning)
+
+@contextlib.contextmanager
+def _spy_quiet():
+    """SPy's reading without its note that it lower-cased a header key: keys are case-insensitive
+    (docs/data-format.md), so that is no news to the user."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Parameters with non-lowercase names", category=UserWarning)
+        yield
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
@@ -78,7 +85,8 @@ def envi_image_path(path_hdr: Path) -> Path | None:
 def read_envi_header(path_hdr: Path) -> dict:
     """Parsed ENVI header (lower-case keys) of ``path_hdr``; UserError if unreadable."""
     try:
-        return envi.read_envi_header(str(path_hdr))
+        with _spy_quiet():
+            return envi.read_envi_header(str(path_hdr))
     except Exception as exc:  # SPy raises several types for malformed headers
         raise UserError(f"unreadable ENVI header ({exc})", file=path_hdr) from None
 
@@ -180,7 +188,8 @@ def _open_envi(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_l
                         f"{expected} (header offset + lines x samples x bands x {nbytes} bytes)", file=img)
     nodata, scale = envi_value_meaning(hdr, path)      # before SPy, which parses them less strictly
     try:
-        envi.open(str(path), str(img))
+        with _spy_quiet():
+            envi.open(str(path), str(img))
     except Exception as exc:
         raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
     return CubeSource("envi", path, lines, samples, n_bands, nodata=nodata, scale=scale)
@@ -225,7 +234,8 @@ def open_cube(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_li
 def _raw_array(src: CubeSource):
     """A lazily indexable [lines, samples, bands] view of the cube (memory map where possible)."""
     if src.kind == "envi":
-        return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
+        with _spy_quiet():
+            return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
     if src.kind == "npy":
         return np.load(src.path, mmap_mode="r")
     try:
