@@ -92,7 +92,8 @@ def test_a_position_beyond_float_range_is_refused(tmp_path, capsys):
     rc, err = run_import(root, capsys)
     assert rc == 2 and "images.bin" in err and "image v1.png" in err and "out of range" in err, err
     root = make_project(tmp_path / "p", TINY.with_image(0, pose=(*Q0[:4], 1e308, 0.0, -1e308)))
-    (root / "side.json").write_text(json.dumps({"enu_from_colmap": np.diag([10.0, 10.0, 10.0, 1.0]).tolist()}))
+    # scale 10 and a half turn about x: TINY's cameras (below z = 0 in its frame) land above the ground
+    (root / "side.json").write_text(json.dumps({"enu_from_colmap": np.diag([10.0, -10.0, -10.0, 1.0]).tolist()}))
     rc, err = run_import(root, capsys, "--sidecar", str(root / "side.json"))
     assert rc == 2 and "images.bin" in err and "image v0.png" in err and "out of range" in err, err
     assert run_import(make_project(tmp_path / "q", TINY), capsys, "--sidecar", str(root / "side.json")) == (0, "")
@@ -185,7 +186,7 @@ def test_rigs_and_frames_that_do_not_hold_together_are_refused(tmp_path, capsys)
 @pytest.mark.parametrize("side, field", [
     ({"enu_from_colmap": "abc"}, "enu_from_colmap"),
     ({"enu_from_colmap": [[1, 2], [3]]}, "enu_from_colmap"),
-    ({"enu_from_colmap": [[1e400] * 4] * 4}, "enu_from_colmap"),
+    ({"enu_from_colmap": [[1e400] * 4] * 4}, "enu_from_colmap[0][0]"),
     ({"camera_positions_enu": [1, 2, 3]}, "camera_positions_enu"),
     ({"camera_positions_enu": {"v0": "a", "v1": [0, 0, 1], "v2": [1, 0, 0]}}, "camera_positions_enu.v0"),
     ({"camera_positions_enu": {"v0": [0, 0, 1], "v1": [[0], 0, 1]}}, "camera_positions_enu.v1"),

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+from brfgs.data.validation import ascii_float
 from brfgs.errors import UserError
 
 __all__ = ["parse_floats", "parse_size", "check_size", "MAX_IMAGE_PX", "RenderOptions", "BRFOptions", "TruthOptions"]
@@ -20,9 +21,10 @@ def parse_floats(text: str, field: str, n: int | None = None) -> list[float]:
     """Finite numbers of the comma-separated ``text`` (empty items skipped), ``n`` of them when
     given; UserError naming ``field`` otherwise."""
     try:
-        vals = [float(t) for t in str(text).split(",") if t.strip()]
+        vals = [ascii_float(t.strip(" ")) for t in str(text).split(",") if t.strip(" ")]
     except ValueError:
-        raise UserError(f"expected comma-separated numbers, got {text!r}", field=field) from None
+        raise UserError(f"expected comma-separated numbers written with the digits 0-9, got {str(text)[:80]!r}",
+                        field=field) from None
     if not vals or not all(math.isfinite(v) for v in vals):
         raise UserError(f"expected finite numbers, got {text!r}", field=field)
     if n is not None and len(vals) != n:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,9 +64,19 @@ def run_folder(run: Path) -> Path:
     return run if run.is_dir() else run.parent
 
 
+SAFE_NAME_BYTES = 100   # a file name holds at most 255 bytes; a folder named brf_<name> keeps well below
+
+
 def safe_name(name: str) -> str:
-    """``name`` with every character other than letters, digits, '-', '_' and '.' replaced by '_'."""
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name)
+    """``name`` with every character other than letters, digits, '-', '_' and '.' replaced by '_'; a
+    name of more than SAFE_NAME_BYTES bytes (UTF-8) is cut and ends in '-' and 10 hex digits of the
+    SHA-256 of the whole name, so that long names stay distinct and fit a file name."""
+    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in str(name))
+    if len(safe.encode("utf-8", "replace")) <= SAFE_NAME_BYTES:
+        return safe
+    digest = hashlib.sha256(str(name).encode("utf-8", "surrogatepass")).hexdigest()[:10]
+    cut = safe.encode("utf-8", "replace")[:SAFE_NAME_BYTES - 11].decode("utf-8", "ignore")
+    return f"{cut}-{digest}"
 
 
 @dataclass

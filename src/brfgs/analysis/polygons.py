@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from brfgs.data.validation import finite_number, read_json_file
+from brfgs.data.validation import finite_number, plain_text, read_json_file
 from brfgs.errors import UserError
 
 __all__ = ["points_in_polygon", "points_in_polygons", "ring_area", "GEOJSON_SUFFIXES", "read_geojson_polygons",
@@ -62,6 +62,9 @@ def ring_area(ring_xy: np.ndarray) -> float:
 
 
 GEOJSON_SUFFIXES = (".geojson", ".json")
+# |x|, |y| of an ROI vertex: ENU metres (or lon/lat degrees). No polygon beyond 10,000 km can lie over a
+# scene (its cameras are within 100 km of the origin), and areas of larger coordinates overflow.
+MAX_COORDINATE = 1.0e7
 _LOCAL_CRS_WORDS = ("enu", "local")
 
 
@@ -117,6 +120,10 @@ def _geojson_ring(ring, path: Path, where: str) -> np.ndarray:
         xy = [finite_number(c) for c in pos[:2]]
         if None in xy:
             raise UserError(f"non-finite or out-of-range coordinate {_short(pos)}", file=path, field=f"{where}[{k}]")
+        if max(abs(xy[0]), abs(xy[1])) > MAX_COORDINATE:
+            raise UserError(f"coordinate {_short(pos)} out of range: ROI coordinates are the scene's ENU metres (or "
+                            f"lon/lat degrees), at most {MAX_COORDINATE:.0e} in size", file=path,
+                            field=f"{where}[{k}]")
         pts.append((xy[0], xy[1]))
     v = np.array(pts, float).reshape(-1, 2)
     if len(v) >= 2 and np.array_equal(v[0], v[-1]):
@@ -193,13 +200,15 @@ def read_geojson_polygons(path: str | Path) -> tuple[list[list[np.ndarray]], str
                 raise UserError("the Feature has no geometry", file=path, field=f"features[{i}].geometry")
             polys += _geojson_geometry(f["geometry"], path, f"features[{i}].geometry.")
         if len(feats) == 1 and isinstance(feats[0].get("properties"), dict):
-            name = feats[0]["properties"].get("name")
+            name, where = feats[0]["properties"].get("name"), "features[0].properties.name"
     elif t == "Feature":
         if data.get("geometry") is None:
             raise UserError("the Feature has no geometry", file=path, field="geometry")
         polys = _geojson_geometry(data["geometry"], path, "geometry.")
         if isinstance(data.get("properties"), dict):
-            name = data["properties"].get("name")
+            name, where = data["properties"].get("name"), "properties.name"
     else:
         polys = _geojson_geometry(data, path, "")
-    return polys, (str(name) if name not in (None, "") else None)
+    if name in (None, ""):
+        return polys, None
+    return polys, plain_text(name if isinstance(name, str) else json.dumps(name)[:200], path, where)

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from brfgs.analysis.polygons import points_in_polygon, points_in_polygons, ring_area
+from brfgs.analysis.polygons import MAX_COORDINATE, points_in_polygon, points_in_polygons, ring_area
 from brfgs.data.cameras import Intrinsics, pixel_rays
 from brfgs.data.validation import read_json_file
 from brfgs.errors import UserError
@@ -100,6 +100,9 @@ class PolygonROI(ROI):
                 v = np.asarray(ring, float)
                 if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3 or not np.isfinite(v).all():
                     raise UserError("a polygon ROI needs at least 3 finite (x, y) vertices in metres", field="roi")
+                if np.abs(v).max() > MAX_COORDINATE:
+                    raise UserError(f"a vertex coordinate of {np.abs(v).max():.3g} is out of range: ROI vertices are "
+                                    f"the scene's ENU metres, at most {MAX_COORDINATE:.0e} in size", field="roi")
                 rr.append(v)
             if not rr:
                 raise UserError("a polygon ROI needs at least one ring", field="roi")

@@ -26,10 +26,10 @@ import numpy as np
 from PIL import Image
 
 from brfgs.analysis.options import parse_floats
-from brfgs.analysis.polygons import GEOJSON_SUFFIXES, is_lonlat_crs, read_geojson_polygons
+from brfgs.analysis.polygons import GEOJSON_SUFFIXES, MAX_COORDINATE, is_lonlat_crs, read_geojson_polygons
 from brfgs.analysis.roi import ROI, PointSetROI, PolygonROI, material_points, roi_from_view_mask
 from brfgs.data.scene import Scene
-from brfgs.data.validation import read_json_file
+from brfgs.data.validation import plain_text, read_json_file
 from brfgs.errors import UserError
 from brfgs.model import TrainedModel, camera_from_intrinsics, render
 
@@ -63,6 +63,8 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
     bad file fails before any model is loaded.
     """
     text = str(text).strip()
+    if name is not None:
+        plain_text(str(name), None, "--roi-name")
     kind, _, rest = text.partition(":")
     kind = kind.strip().lower()
     if kind in ("geojson", "lonlat") or (kind not in ("polygon", "box", "mask", "material")
@@ -81,6 +83,9 @@ def parse_roi_spec(text: str, name: str | None = None) -> ROISpec:
         xy = [parse_floats(p, "--roi") for p in pts]
         if len(xy) < 3 or any(len(v) != 2 for v in xy):
             raise UserError("polygon ROI: expected 'polygon:X1,Y1;X2,Y2;X3,Y3[;...]' (ENU metres)", field="--roi")
+        if max(abs(c) for v in xy for c in v) > MAX_COORDINATE:
+            raise UserError(f"polygon ROI: a coordinate is out of range: vertices are the scene's ENU metres, at most "
+                            f"{MAX_COORDINATE:.0e} in size", field="--roi")
         return ROISpec("polygon", name or "polygon", polygon_xy_m=np.array(xy))
     if kind in ("box", "mask"):
         view, _, arg = rest.partition(":")
@@ -158,8 +163,9 @@ def _lonlat_to_enu(spec: ROISpec, tm: TrainedModel) -> ROISpec:
     """The lon/lat polygon ``spec`` in the scene's ENU metres (its origin, brfgs.data.georef)."""
     mf = tm.map_frame
     if mf is None:
+        src = (spec.source or {}).get("file")
         raise UserError("a lon/lat ROI needs a georeferenced scene (transforms.json 'origin'); give the polygon "
-                        "in ENU metres instead", field="--roi")
+                        "in ENU metres instead", file=src, field="crs" if src else "--roi")
     h = mf.origin.altitude_m
 
     def conv(ring: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ process exits with status 2.
 
 from __future__ import annotations
 
+import errno
 import importlib
 import importlib.util
 import os
@@ -26,8 +27,12 @@ if "OMP_WAIT_POLICY" not in os.environ:
     os.environ.setdefault("GOMP_SPINCOUNT", "1000")
 
 import typer
+from typer._click.exceptions import BadParameter, ClickException, MissingParameter  # typer's own click
 
 from brfgs.errors import STORAGE_ERRNOS, UserError
+
+# OSErrors of a path the user gave (a name too long for the file system): exit status 2, one line.
+PATH_ERRNOS = {errno.ENAMETOOLONG}
 
 app = typer.Typer(
     name="brfgs",
@@ -77,17 +82,40 @@ for _name in COMMAND_MODULES:
         importlib.import_module(_name).register(app)
 
 
+def usage_error_line(exc: ClickException) -> str:
+    """One line for an option-parse error of click: ``--sun-zenith: 'abc' is not a number``, ``no such
+    option: --bogus``, ``missing argument 'SCENE'`` (click's own messages, without its usage box)."""
+    if isinstance(exc, BadParameter) and not isinstance(exc, MissingParameter):
+        hint = exc.param_hint
+        if hint is None and exc.param is not None:
+            opts = getattr(exc.param, "opts", None) or [exc.param.human_readable_name or ""]
+            hint = max(opts, key=len) if opts[0].startswith("-") else opts[0]
+        hint = " / ".join(hint) if isinstance(hint, (list, tuple)) else str(hint or "").strip("'\"")
+        msg = " ".join(exc.message.split())
+        return f"{hint}: {msg}" if hint else msg
+    msg = " ".join(exc.format_message().split())
+    return msg[:1].lower() + msg[1:] if msg[:2] in ("No", "Mi", "Go") else msg
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``brfgs`` console script; returns the exit status.
 
-    Exit status: 0 success; 2 usage errors (click) and user errors (:class:`UserError`: one line
-    naming the file and the field); 3 a file could not be written or read for a storage reason
+    Exit status: 0 success; 2 usage errors (click's option parsing: one line
+    ``brfgs: error: --option: message``) and user errors (:class:`UserError`: one line naming the file
+    and the field; a path too long for the file system, one line naming it); 3 a file could not be written or read for a storage reason
     (no space left, read-only file system, permission denied, I/O error: one line naming the path;
     results are written under temporary names and renamed into place, so no half file is left);
     130 Ctrl-C (long commands checkpoint before that).
     """
     try:
-        app(args=argv, prog_name="brfgs")
+        rv = app(args=argv, prog_name="brfgs", standalone_mode=False)  # click's errors come here, not its box
+    except ClickException as exc:
+        if type(exc).__name__ != "NoArgsIsHelpError":  # that one is the help, already shown
+            print(f"brfgs: error: {usage_error_line(exc)}", file=sys.stderr)
+        return exc.exit_code
+    except typer.Abort:
+        print("brfgs: interrupted", file=sys.stderr)
+        return 130
     except SystemExit as exc:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
@@ -98,9 +126,11 @@ def main(argv: list[str] | None = None) -> int:
         print("brfgs: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:
-        if exc.errno not in STORAGE_ERRNOS:
+        if exc.errno not in STORAGE_ERRNOS | PATH_ERRNOS:
             raise
-        where = exc.filename or "(unknown path)"
+        where = str(exc.filename or "(unknown path)")
+        if len(where) > 300:                                 # the path itself may be what is too long
+            where = f"{where[:150]}...{where[-100:]} ({len(where)} characters)"
         print(f"brfgs: error: {where}: {exc.strerror or os.strerror(exc.errno)}", file=sys.stderr)
-        return 3
-    return 0
+        return 2 if exc.errno in PATH_ERRNOS else 3
+    return rv if isinstance(rv, int) and not isinstance(rv, bool) else 0

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -90,11 +91,12 @@ def _parse_tuple(text: str, tp, option: ConfigOption) -> tuple:
     """'A,B,...' -> tuple of the field's item type; UserError naming the option when malformed."""
     args = typing.get_args(tp)
     item = args[0]
-    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    parts = [p.strip(" ") for p in str(text).split(",") if p.strip(" ")]
     try:
-        vals = tuple(item(p) for p in parts)
-    except ValueError:
-        raise UserError(f"expected comma-separated {item.__name__} values, got {text!r}", field=option.flag) from None
+        vals = tuple(_item(p, item) for p in parts)
+    except (ValueError, typer.BadParameter):
+        raise UserError(f"expected comma-separated {item.__name__} values, got {str(text)[:80]!r}",
+                        field=option.flag) from None
     fixed = not (len(args) == 2 and args[1] is Ellipsis)
     if fixed and len(vals) != len(args) or not vals:
         raise UserError(f"expected {len(args) if fixed else 'one or more'} comma-separated values, got {text!r}",
@@ -102,6 +104,11 @@ def _parse_tuple(text: str, tp, option: ConfigOption) -> tuple:
     if item is float and not all(math.isfinite(v) for v in vals):
         raise UserError(f"expected finite numbers, got {text!r}", field=option.flag)
     return vals
+
+
+def _item(text: str, item: type):
+    """One item of a tuple option: numbers through :func:`parse_number`, text as it is."""
+    return parse_number(text, item) if item in (int, float) else item(text)
 
 
 def _field_type(cls, path: tuple[str, ...]):
@@ -175,11 +182,32 @@ def _default_text(o: ConfigOption) -> str:
     return f" (default: {text})"
 
 
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+
+
+def parse_number(text, kind: type):
+    """A number option's text as ``kind`` (int or float): ASCII digits only (Python's int()/float()
+    would read other scripts' digits, '1_000' and surrounding blanks), finite, at most 30 characters;
+    typer.BadParameter (one line naming the option, brfgs.cli.main) otherwise."""
+    if isinstance(text, kind) and not isinstance(text, bool):
+        return text
+    pattern, what = (_INTEGER, "an integer") if kind is int else (_DECIMAL, "a number")
+    if not isinstance(text, str) or len(text) > 30 or not pattern.fullmatch(text):
+        raise typer.BadParameter(f"expected {what} written with the digits 0-9, got {str(text)[:40]!r}")
+    value = kind(text)
+    if kind is float and not math.isfinite(value):
+        raise typer.BadParameter(f"expected a finite number, got {text!r}")
+    return value
+
+
 def _option_parameter(o: ConfigOption) -> inspect.Parameter:
-    """The keyword parameter (a typer.Option) of a generated option."""
+    """The keyword parameter (a typer.Option) of a generated option; numbers are read by
+    :func:`parse_number`."""
     annotation = o.kind if o.required else Optional[o.kind]
+    number = {"parser": (lambda text, kind=o.kind: parse_number(text, kind))} if o.kind in (int, float) else {}
     option = typer.Option(... if o.required else None, o.flag, *o.aliases, help=o.help + _default_text(o),
-                          show_default=False,
+                          show_default=False, **number,
                           metavar=o.metavar, hidden=o.expert, rich_help_panel=EXPERT_PANEL if o.expert else o.panel)
     return inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, annotation=annotation, default=option)
 

@@ -34,6 +34,9 @@ def colmap_cmd(
         sidecar = project / "spectral.json"
     tf, info = import_colmap(project, sparse, images, sidecar, overwrite=o.overwrite)
     typer.echo(f"wrote {tf}: {info['frames']} frames, {info['cameras']} camera(s), alignment: {info['alignment']}")
+    if info["unregistered"]:
+        names = ", ".join(info["unregistered"][:8]) + (", ..." if len(info["unregistered"]) > 8 else "")
+        typer.echo(f"left out {len(info['unregistered'])} sidecar frame(s) whose cube COLMAP did not register: {names}")
 
 
 def register(app: typer.Typer) -> None:

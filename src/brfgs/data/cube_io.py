@@ -7,6 +7,8 @@ layout and row blocks can be read from a memory map without touching the rest.
 
 from __future__ import annotations
 
+import contextlib
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,10 +16,19 @@ import numpy as np
 import spectral.io.envi as envi
 import tifffile
 
-from brfgs.data.validation import RangeTally, confined, header_matches
+from brfgs.data.validation import RangeTally, ascii_float, confined, header_matches
 from brfgs.errors import UserError
 from brfgs.data.atomic import atomic_path
 from brfgs.data.tiff_window import read_tiff_window
+
+
+@contextlib.contextmanager
+def _spy_quiet():
+    """SPy's reading without its note that it lower-cased a header key: keys are case-insensitive
+    (docs/data-format.md), so that is no news to the user."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Parameters with non-lowercase names", category=UserWarning)
+        yield
 
 CUBE_SUFFIXES = (".hdr", ".npy", ".tif", ".tiff")
 CHUNK_BYTES = 64 * 2**20  # read at most ~64 MiB of raw cube per block
@@ -75,7 +86,8 @@ def envi_image_path(path_hdr: Path) -> Path | None:
 def read_envi_header(path_hdr: Path) -> dict:
     """Parsed ENVI header (lower-case keys) of ``path_hdr``; UserError if unreadable."""
     try:
-        return envi.read_envi_header(str(path_hdr))
+        with _spy_quiet():
+            return envi.read_envi_header(str(path_hdr))
     except Exception as exc:  # SPy raises several types for malformed headers
         raise UserError(f"unreadable ENVI header ({exc})", file=path_hdr) from None
 
@@ -108,8 +120,9 @@ def _header_int(hdr: dict, key: str, path: Path, lo: int) -> int:
     """An integer header field written as digits, >= ``lo``; UserError naming the field otherwise."""
     v = hdr.get(key)
     text = v.strip() if isinstance(v, str) else None
-    if text is None or not text.isdigit() or len(text) > 12 or int(text) < lo:
-        raise UserError(f"expected an integer >= {lo}, found {v!r}", file=path, field=key)
+    if text is None or not text.isascii() or not text.isdigit() or len(text) > 12 or int(text) < lo:
+        raise UserError(f"expected an integer >= {lo} written with the digits 0-9, found {str(v)[:40]!r}", file=path,
+                        field=key)
     return int(text)
 
 
@@ -117,12 +130,13 @@ def _header_number(value, path: Path, field: str, *, positive: bool = False, nan
     """A number from a header field (ENVI or a GeoTIFF's GDAL_NODATA); UserError naming the field otherwise."""
     text = value.strip() if isinstance(value, str) else value
     try:
-        x = float(text)
-    except (TypeError, ValueError):
+        x = ascii_float(text, non_finite=True)       # not float(): it reads other scripts' digits too
+    except ValueError:
         x = None
     if x is None or (np.isnan(x) and not nan_ok) or np.isinf(x) or (positive and not x > 0):
         want = "a positive number" if positive else "a number" + (" or nan" if nan_ok else "")
-        raise UserError(f"expected {want}, found {value!r}", file=path, field=field)
+        raise UserError(f"expected {want} written with the digits 0-9, found {str(value)[:40]!r}", file=path,
+                        field=field)
     return x
 
 
@@ -175,7 +189,8 @@ def _open_envi(path: Path, wl: np.ndarray, tf: Path, frame: str, allow_outside_l
                         f"{expected} (header offset + lines x samples x bands x {nbytes} bytes)", file=img)
     nodata, scale = envi_value_meaning(hdr, path)      # before SPy, which parses them less strictly
     try:
-        envi.open(str(path), str(img))
+        with _spy_quiet():
+            envi.open(str(path), str(img))
     except Exception as exc:
         raise UserError(f"frame '{frame}': unreadable ENVI cube ({exc})", file=path) from None
     return CubeSource("envi", path, lines, samples, n_bands, nodata=nodata, scale=scale)
@@ -231,7 +246,8 @@ def _raw_array(src: CubeSource):
     """A lazily indexable [lines, samples, bands] view of the cube (a memory map), or None for a
     TIFF that cannot be memory-mapped (compressed, tiled or striped): read by window then."""
     if src.kind == "envi":
-        return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
+        with _spy_quiet():
+            return envi.open(str(src.path), str(envi_image_path(src.path))).open_memmap(interleave="bip")
     if src.kind == "npy":
         return np.load(src.path, mmap_mode="r")
     try:

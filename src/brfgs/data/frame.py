@@ -83,8 +83,8 @@ def _read_frame(root: Path, tf: Path, k: int, fm, names: set[str], wl_all: np.nd
         if vz is None or va is None or fm.get("distance_m") is None:
             raise UserError("needs either transform_matrix or view_zenith_deg, view_azimuth_deg and "
                             "distance_m", file=tf, field=fld)
-        dist = V.number(fm["distance_m"], tf, f"{fld}.distance_m", lo=1e-6)
-        c2w = pose_from_view_angles(vz, va, dist)
+        c2w = pose_from_view_angles(vz, va, V.camera_distance(fm["distance_m"], tf, f"{fld}.distance_m"))
+    V.camera_position(c2w, tf, f"{fld}.transform_matrix", above_ground=vz is None or va is None)
     if vz is None or va is None:  # derive nominal angles from the camera centre
         zr, ar = angles_from_direction(c2w[:3, 3])
         vz, va = float(np.degrees(zr)), float(np.degrees(ar))

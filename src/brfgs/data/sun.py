@@ -50,6 +50,10 @@ def solar_position(times_utc: list[str] | pd.DatetimeIndex, origin: Origin) -> t
 def _parse_time(v, tf: Path, field: str) -> pd.Timestamp:
     import pandas as pd  # lazy: as in solar_position
 
+    if isinstance(v, str) and (not v.isascii() or not v.isprintable() or v != v.strip() or len(v) > 64):
+        # pandas reads a time with a NUL or a newline after it, other scripts' digits, blanks around
+        raise UserError(f"expected an ISO 8601 time written in ASCII characters without control characters or "
+                        f"blanks around it, such as '2024-06-21T10:32:05Z', got {v[:80]!r}", file=tf, field=field)
     try:
         t = pd.Timestamp(v) if isinstance(v, str) else None
     except (ValueError, TypeError):

@@ -25,6 +25,13 @@ ALLOW_LINKS_HINT = "pass --allow-outside-links to read files that links lead to 
 ORTHONORMAL_TOL = 1e-3
 WAVELENGTH_TOL_NM = 0.5
 MIN_FRAMES = 3
+MAX_CAMERA_DISTANCE_M = 100_000.0   # a camera farther than this from the scene origin is an input error
+MIN_CAMERA_DISTANCE_M = 1e-3        # a camera nearer than this to the scene origin sits on the scene centre
+# Numbers written as text (header fields, option values): ASCII digits only. Python's int() and
+# float() also read other scripts' digits ('١٦' is 16), '1_000' and blanks around the number.
+ASCII_INTEGER = re.compile(r"[+-]?[0-9]+")
+ASCII_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+ASCII_NON_FINITE = re.compile(r"[+-]?(nan|inf|infinity)", re.IGNORECASE)
 
 
 def number(value, file: Path, field: str, *, lo: float | None = None, hi: float | None = None,
@@ -44,6 +51,24 @@ def number(value, file: Path, field: str, *, lo: float | None = None, hi: float 
     if (lo is not None and value < lo) or (hi is not None and value > hi):
         raise UserError(f"value {value} out of range, expected {lo} to {hi}", file=file, field=field)
     return int(value) if integer else float(value)
+
+
+def ascii_float(text: str, *, non_finite: bool = False) -> float:
+    """The number ``text`` (a str, already stripped) written with ASCII digits, an optional sign,
+    decimal point and exponent (and, with ``non_finite``, nan / inf / infinity); ValueError otherwise."""
+    if not isinstance(text, str) or len(text) > 64:
+        raise ValueError(f"not a number: {str(text)[:40]!r}")
+    if ASCII_DECIMAL.fullmatch(text) or (non_finite and ASCII_NON_FINITE.fullmatch(text)):
+        return float(text)
+    raise ValueError(f"not a number written with the digits 0-9: {text[:40]!r}")
+
+
+def ascii_int(text: str) -> int:
+    """The integer ``text`` (a str, already stripped) written with ASCII digits and an optional sign,
+    at most 18 digits; ValueError otherwise."""
+    if isinstance(text, str) and len(text) <= 19 and ASCII_INTEGER.fullmatch(text):
+        return int(text)
+    raise ValueError(f"not an integer written with the digits 0-9: {str(text)[:40]!r}")
 
 
 def number_list(value, file: Path, field: str, *, length: int | None = None) -> np.ndarray:
@@ -73,10 +98,18 @@ def wavelengths(values, file: Path, field: str) -> np.ndarray:
 
 def transform_matrix(value, file: Path, field: str) -> np.ndarray:
     """A 4×4 camera-to-world with an orthonormal, right-handed rotation and last row (0, 0, 0, 1)."""
+    rows = value if isinstance(value, (list, tuple)) else []
+    if any(not isinstance(x, (int, float)) or isinstance(x, bool) for row in rows
+           for x in (row if isinstance(row, (list, tuple)) else [row])):
+        raise UserError("expected a 4x4 matrix of numbers (rows of four JSON numbers, not strings or booleans)",
+                        file=file, field=field)
     try:
         m = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise UserError("expected a 4x4 matrix of numbers", file=file, field=field) from None
+    except OverflowError:  # an integer beyond the float range
+        raise UserError("a matrix element is an integer beyond the range of a float", file=file,
+                        field=field) from None
     if m.shape != (4, 4):
         raise UserError(f"expected a 4x4 matrix, found shape {m.shape}", file=file, field=field)
     if not np.all(np.isfinite(m)):
@@ -93,6 +126,33 @@ def transform_matrix(value, file: Path, field: str) -> np.ndarray:
         raise UserError("rotation part has determinant -1 (a reflection), expected a proper rotation",
                         file=file, field=field)
     return m
+
+
+def camera_distance(value, file: Path, field: str) -> float:
+    """A frame's ``distance_m``: a number between MIN_CAMERA_DISTANCE_M and MAX_CAMERA_DISTANCE_M."""
+    return number(value, file, field, lo=MIN_CAMERA_DISTANCE_M, hi=MAX_CAMERA_DISTANCE_M)
+
+
+def camera_position(c2w: np.ndarray, file: Path, field: str, above_ground: bool = False) -> None:
+    """UserError unless the camera centre of ``c2w`` [4, 4] lies between MIN_CAMERA_DISTANCE_M and
+    MAX_CAMERA_DISTANCE_M from the scene origin (a camera on the scene centre has no view direction;
+    one farther than 100 km is not a camera of the scene: wrong units or an unaligned model) and, with
+    ``above_ground`` (its view angles come from its position), above the ground plane z = 0."""
+    centre = np.asarray(c2w, float)[:3, 3]
+    far = float(np.abs(centre).max())                      # before the norm: 1e300 squared overflows
+    dist = far if far > MAX_CAMERA_DISTANCE_M else float(np.linalg.norm(centre))
+    if dist < MIN_CAMERA_DISTANCE_M:
+        raise UserError("the camera sits at the scene origin (0, 0, 0), where its view direction is undefined; "
+                        "cameras are positions in ENU metres around the scene (an unaligned COLMAP model puts its "
+                        "first image there)", file=file, field=field)
+    if dist > MAX_CAMERA_DISTANCE_M:
+        raise UserError(f"the camera is {dist:.4g} m from the scene origin, farther than the {MAX_CAMERA_DISTANCE_M / 1000:g}"
+                        " km a camera of a scene may be; positions are ENU metres around the scene", file=file,
+                        field=field)
+    if above_ground and not centre[2] > 0:
+        raise UserError(f"the camera is at or below the ground plane (z = {centre[2]:.6g} m), where its view angles "
+                        "are undefined: give view_zenith_deg and view_azimuth_deg, or a camera above the scene",
+                        file=file, field=field)
 
 
 def json_depth(obj) -> int:
@@ -154,7 +214,24 @@ def path_text(rel: object, file: Path, field: str) -> str:
         rel.encode("utf-8")
     except UnicodeEncodeError:
         raise UserError(f"path {rel!r} is not valid Unicode (a lone surrogate)", file=file, field=field) from None
+    if rel.endswith(("/", "\\")) or rel.rsplit("/", 1)[-1] in (".", ".."):
+        raise UserError(f"path {rel[:200]!r} names a folder, not a file (remove the trailing '{rel[-1]}')"
+                        if rel.endswith(("/", "\\")) else f"path {rel[:200]!r} does not end in a file name",
+                        file=file, field=field)
     return rel
+
+
+def plain_text(value: str, file: Path | None, field: str, what: str = "name") -> str:
+    """``value`` unless it holds control characters or lone surrogates (it goes into titles, messages and
+    file names); UserError naming the file and the field otherwise."""
+    if CONTROL_CHARS.search(value):
+        raise UserError(f"the {what} {value[:80]!r} contains control characters", file=file, field=field)
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UserError(f"the {what} {value[:80]!r} is not valid Unicode (a lone surrogate)", file=file,
+                        field=field) from None
+    return value
 
 
 def confined(path: Path, root: Path, file: Path, field: str | None, allow_outside_links: bool) -> Path:
@@ -184,14 +261,15 @@ def path_inside(root: Path, rel: object, file: Path, field: str, allow_outside_l
 def header_matches(hdr: dict, expected_wl: np.ndarray, cube_file: Path, transforms_file: Path,
                    n_bands: int) -> None:
     """A cube's ENVI header agrees with ``transforms.json`` (band count, wavelengths)."""
-    if hdr.get("bands") is not None and int(hdr["bands"]) != n_bands:
+    if hdr.get("bands") is not None and ascii_int(str(hdr["bands"]).strip()) != n_bands:
         raise UserError(f"header has {int(hdr['bands'])} bands but {transforms_file.name} lists "
                         f"{n_bands} wavelengths", file=cube_file, field="bands")
     if "wavelength" in hdr:
         try:
-            wl = np.asarray([float(v) for v in hdr["wavelength"]])
+            wl = np.asarray([ascii_float(str(v).strip()) for v in hdr["wavelength"]])
         except (TypeError, ValueError):
-            raise UserError("wavelength values are not numbers", file=cube_file, field="wavelength") from None
+            raise UserError("wavelength values are not numbers written with the digits 0-9", file=cube_file,
+                            field="wavelength") from None
         if len(wl) != n_bands:
             raise UserError(f"header lists {len(wl)} wavelengths, expected {n_bands}", file=cube_file,
                             field="wavelength")

@@ -37,7 +37,7 @@ from brfgs.init.pycolmap_safe import pycolmap
 
 from brfgs.data import atomic
 from brfgs.data.cameras import GL_TO_CV
-from brfgs.data.validation import read_json_file
+from brfgs.data.validation import camera_position, finite_number, read_json_file
 from brfgs.errors import UserError
 from brfgs.init.colmap_model import MAX_COMPONENT_BYTES, Camera
 from brfgs.init.colmap_read import read_model
@@ -97,17 +97,76 @@ def _find_cube(images: Path, stem: str, where: Path) -> Path:
 
 
 def _number_array(value, shape: tuple[int, ...]) -> np.ndarray | None:
-    """``value`` (nested JSON lists) as a finite float64 array of ``shape``; None if it is not one."""
+    """``value`` (nested JSON lists of numbers, not strings) as a finite float64 array of ``shape``; None
+    if it is not one."""
+    stack = [value]
+    while stack:                                          # numpy would read the string "1" (or "١") as 1.0
+        v = stack.pop()
+        if isinstance(v, list):
+            stack.extend(v)
+        elif isinstance(v, bool) or not isinstance(v, (int, float)):
+            return None
     try:
         a = np.asarray(value, dtype=float)
     except (ValueError, TypeError, OverflowError):
         return None
-    return a if a.shape == shape and np.isfinite(a).all() and not isinstance(value, bool) else None
+    return a if a.shape == shape and np.isfinite(a).all() else None
 
 
-def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: Path) -> tuple[float, np.ndarray,
-                                                                                                np.ndarray, str]:
-    """(scale, R [3, 3], t [3], how) of ENU = s R x + t."""
+def _non_finite_field(value, where: str = "") -> str | None:
+    """The field path (``frames.v0.irradiance_scale``, ``wavelengths_nm[2]``) of the first NaN, ±Infinity
+    or integer beyond the float range in a parsed JSON value, or None."""
+    stack = [(value, where)]
+    while stack:
+        v, at = stack.pop()
+        if isinstance(v, dict):
+            stack.extend((x, f"{at}.{k}" if at else str(k)) for k, x in reversed(list(v.items())))
+        elif isinstance(v, list):
+            stack.extend((x, f"{at}[{i}]") for i, x in reversed(list(enumerate(v))))
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and finite_number(v) is None:
+            return at
+    return None
+
+
+def _check_stems(named, stems: list[str], images: Path, where: Path, field: str) -> list[str]:
+    """The keys of ``named`` (a sidecar object keyed by image stem) that are no image of the COLMAP model
+    but a cube in ``images`` (images COLMAP did not register: left out); UserError naming the first key
+    that is neither (a typo would otherwise be ignored without a word)."""
+    left_out = []
+    for stem in named:
+        if stem in stems:
+            continue
+        if not isinstance(stem, str) or "/" in stem or stem in ("", ".", "..") or \
+                not any(_cube_exists(images, stem, sfx) for sfx in CUBE_SUFFIXES):
+            known = ", ".join(stems[:6]) + (", ..." if len(stems) > 6 else "")
+            raise UserError(f"no image of the COLMAP model and no cube in {images} has the stem {str(stem)[:80]!r} "
+                            f"(the model's images: {known})", file=where, field=f"{field}.{str(stem)[:80]}")
+        left_out.append(stem)
+    return left_out
+
+
+def _cube_exists(images: Path, stem: str, suffix: str) -> bool:
+    name = f"{stem}{suffix}"
+    return len(name.encode("utf-8", "replace")) <= MAX_COMPONENT_BYTES and (images / name).is_file()
+
+
+def _check_gauge(regs, how: str, model_file: Path) -> None:
+    """UserError for a model that is not in ENU metres: without an alignment, an image with the identity
+    pose (COLMAP's own gauge: the model is in the frame of that image, not georeferenced)."""
+    if not how.startswith("none"):
+        return
+    for im in regs:
+        if np.allclose(np.asarray(im.cam_from_world, float), np.eye(4)[:3], atol=1e-9):
+            raise UserError(f"the model is not georeferenced/aligned: its image {im.name!r} has the identity pose "
+                            "(COLMAP's own frame, not ENU metres); give camera_positions_enu ({image stem: [east, "
+                            "north, up] metres}, e.g. the flight's GNSS positions) or enu_from_colmap in spectral.json "
+                            "(--sidecar), or align the model first (colmap model_aligner)", file=model_file,
+                            field=f"image {im.name}")
+
+
+def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: Path, images: Path
+                ) -> tuple[float, np.ndarray, np.ndarray, str]:
+    """(scale, R [3, 3], t [3], how) of ENU = s R x + t (``images``: the cube folder, see _check_stems)."""
     if sidecar.get("enu_from_colmap") is not None:
         m = _number_array(sidecar["enu_from_colmap"], (4, 4))
         if m is None:
@@ -131,6 +190,7 @@ def _similarity(sidecar: dict, stems: list[str], c2w: list[np.ndarray], where: P
                             file=where, field=f"camera_positions_enu.{k}")
         if k in stems:
             pairs.append((c2w[stems.index(k)][:3, 3], xyz))
+    _check_stems(pos, stems, images, where, "camera_positions_enu")
     if len(pairs) < 3:
         raise UserError(f"{len(pairs)} of the named images are in the COLMAP model; a similarity needs 3",
                         file=where, field="camera_positions_enu")
@@ -176,6 +236,10 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
         sidecar = read_json_file(Path(sidecar_path), "JSON sidecar")
         if not isinstance(sidecar, dict):
             raise UserError("expected a JSON object", file=sidecar_path)
+        bad = _non_finite_field(sidecar)
+        if bad is not None:           # json reads NaN, Infinity and 1e400; transforms.json would hold null
+            raise UserError("expected a finite number (NaN, Infinity and numbers beyond the float range are not "
+                            "values)", file=sidecar_path, field=bad)
     model = read_model(sparse)
     regs = model.images
     if not regs:
@@ -189,7 +253,13 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
             c2w.append(np.linalg.inv(w2c) @ GL_TO_CV)
         if not np.isfinite(c2w[-1]).all():
             raise UserError("the camera position is out of range", file=model.files["images"], field=f"image {im.name}")
-    s, r, t, how = _similarity(sidecar, stems, c2w, Path(sidecar_path) if sidecar_path else sparse)
+    where = Path(sidecar_path) if sidecar_path else sparse
+    s, r, t, how = _similarity(sidecar, stems, c2w, where, images)
+    _check_gauge(regs, how, model.files["images"])
+    per = sidecar.get("frames", {})
+    if not isinstance(per, dict):
+        raise UserError("expected an object {image stem: {time, sun_zenith_deg, ...}}", file=where, field="frames")
+    unregistered = _check_stems(per, stems, images, where, "frames")
     top = _camera_keys(model.cameras[regs[0].camera_id], model.files["cameras"])
     frames = []
     for im, stem, m in zip(regs, stems, c2w):
@@ -201,16 +271,34 @@ def import_colmap(project: Path, sparse: Path, images: Path, sidecar_path: Path 
         if not np.isfinite(enu).all():
             raise UserError("the camera position is out of range after the alignment to ENU", file=model.files["images"],
                             field=f"image {im.name}")
+        _check_enu_camera(enu, how, model.files["images"], im.name)
         fr = {"file_path": cube.resolve().relative_to(project.resolve()).as_posix(), "transform_matrix": enu.tolist(),
               "colmap_image_id": int(im.image_id)}
         own = _camera_keys(model.cameras[im.camera_id], model.files["cameras"])
         fr.update({k: v for k, v in own.items() if top.get(k) != v})
-        fr.update(_frame_extras(sidecar, stem, Path(sidecar_path) if sidecar_path else sparse))
+        fr.update(_frame_extras(sidecar, stem, where))
         frames.append(fr)
     meta = {**top, **{k: sidecar[k] for k in _SIDECAR_KEYS if k in sidecar}, "frames": frames,
             "colmap": {"model": str(Path(sparse).resolve()), "enu_from_colmap": how, "scale": s}}
     atomic.write_json(tf, meta)
-    return tf, {"frames": len(frames), "cameras": len({im.camera_id for im in regs}), "alignment": how}
+    return tf, {"frames": len(frames), "cameras": len({im.camera_id for im in regs}), "alignment": how,
+                "unregistered": unregistered}
+
+
+def _check_enu_camera(enu: np.ndarray, how: str, model_file: Path, name: str) -> None:
+    """UserError naming the image when its camera, in ENU metres, is at the scene origin or beyond
+    MAX_CAMERA_DISTANCE_M (brfgs.data.validation.camera_position), or, after an alignment, at or below
+    the ground (z <= 0): every command would refuse the scene."""
+    hint = "; check camera_positions_enu / enu_from_colmap in the sidecar" if not how.startswith("none") else \
+        "; give camera_positions_enu or enu_from_colmap in spectral.json (--sidecar) to align the model to ENU metres"
+    try:
+        camera_position(enu, model_file, f"image {name}")
+    except UserError as exc:
+        raise UserError(f"after the alignment to ENU ({how}): {exc.detail}{hint}", file=model_file,
+                        field=f"image {name}") from None
+    if not how.startswith("none") and not enu[2, 3] > 0:
+        raise UserError(f"after the alignment to ENU ({how}) the camera is at or below the ground (z = "
+                        f"{enu[2, 3]:.4g} m){hint}", file=model_file, field=f"image {name}")
 
 
 def write_colmap_model(out: Path, intr, names: list[str], c2w_gl: np.ndarray, registered: np.ndarray,
