@@ -1,13 +1,15 @@
 """Run folders written by brfgs 0.1.0 (config format 1, tests/data/format1/README.md) still evaluate,
 render and resume with today's code. Resuming gives 0.1.0's own uninterrupted model up to float32
-rounding (the stored model was trained on another CPU, whose vector kernels round differently), and
-bit for bit the model of an uninterrupted run done here.
+rounding (the stored model was trained on another CPU, whose vector kernels round differently); on
+the machine that runs the test, a resume interrupted once more (in stage 2) and resumed again gives
+the model of the resume not interrupted bit for bit, and the format-1 config gives the model of the
+same options on the command line bit for bit.
 
 How near is "up to float32 rounding": the test resumes 0.1.0's checkpoint once as stored and three
 times with every float32 tensor in it (parameters, optimiser moments, densification statistics)
 moved by one ulp (np.nextafter, a seeded random direction per element); the largest change that
 causes in each tensor of the final model is that tensor's *spread*. The stored model must lie within
-SPREAD_FACTOR spreads of the model resumed here. Measured on an AMD EPYC (Zen 4 host, AVX2 exposed):
+SPREAD_FACTOR spreads of the model resumed here. Measured on a 2-core AMD EPYC exposing AVX2, no AVX-512:
 the stored model lies at <= 0.8 spreads with PyTorch's AVX2 kernels and <= 2.0 spreads with its
 non-vectorised ones (ATEN_CPU_CAPABILITY=default), for the resumed and the rerun model alike; a
 resume that drops the optimiser state lands >= 19 spreads away in the means and ~10^4 spreads away in
