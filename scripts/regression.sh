@@ -2,7 +2,10 @@
 # Regression check between two checkouts of brfgs: every model variant trained on a tiny plane scene
 # (BRF-GS, SH-3 from its stage 1, neural, CIR, joint, the compiled CPU backend), then evaluated, rendered,
 # analysed and exported; the model tensors (model file and checkpoints), metrics and training logs of the
-# two checkouts compared bit for bit (timings and paths left out).
+# two checkouts compared bit for bit (timings and paths left out). Both checkouts train here, in this
+# run, on this machine: bit for bit holds between two models made on the same CPU and software, never
+# against numbers stored from another machine (another CPU rounds float32 reductions differently;
+# docs/reliability.md, "Determinism").
 #
 #   bash scripts/regression.sh OLD_CHECKOUT [NEW_CHECKOUT] [OUT]
 #
