@@ -53,7 +53,8 @@ def dark_frame_sigma(sources: list[CubeSource], value_range, first: Path) -> np.
         def add(r0: int, r1: int, block: np.ndarray) -> None:
             pixels = block.reshape(-1, n_bands)
             for k in range(0, len(pixels), SUM_PIXELS):     # float64 copies of SUM_PIXELS pixels at a time
-                x = pixels[k:k + SUM_PIXELS].astype(np.float64)
+                with np.errstate(invalid="ignore"):  # signalling NaNs of a damaged frame: dropped below
+                    x = pixels[k:k + SUM_PIXELS].astype(np.float64)
                 x = x[np.isfinite(x).all(1)]
                 frame["s1"] = _continued_sum(frame["s1"], x)
                 frame["s2"] = _continued_sum(frame["s2"], x * x)

@@ -18,13 +18,14 @@ from brfgs.model.densify import accumulate
 from brfgs.model.densify_config import ADCConfig, MCMCConfig
 from brfgs.model.mcmc import add_gaussians, mcmc_regulariser, perturb_means, relocate_dead
 from brfgs.render import RenderOutput
+from brfgs.train.config import auto_max_gaussians
 
 
 @dataclass
 class _Strategy:
     """What both strategies share: the cap on the number of Gaussians and the gradient hooks.
 
-    max_gaussians: never more Gaussians than this; max_gaussians_per_px: nor more than this many per
+    max_gaussians: never more Gaussians than this (0: follow the image); max_gaussians_per_px: nor more than this many per
     pixel of a training image (0 = no such cap); width, height: a full training image (px);
     extent_m: the scene extent (m) that the size thresholds are relative to.
     """
@@ -36,8 +37,9 @@ class _Strategy:
     extent_m: float
 
     def cap(self) -> int:
-        """The most Gaussians allowed: max_gaussians, or fewer by the per-pixel cap."""
-        cap = self.max_gaussians
+        """The most Gaussians allowed: max_gaussians (0: the cap that follows the image,
+        :func:`~brfgs.train.config.auto_max_gaussians`), or fewer by the per-pixel cap."""
+        cap = self.max_gaussians or auto_max_gaussians(self.width, self.height)
         if self.max_gaussians_per_px > 0:
             cap = min(cap, int(self.max_gaussians_per_px * self.width * self.height))
         return cap
