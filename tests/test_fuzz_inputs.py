@@ -6,18 +6,14 @@ docs/reliability.md."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from scripts_loader import load_script
 
-_spec = importlib.util.spec_from_file_location("fuzz_inputs", Path(__file__).resolve().parents[1] / "scripts" / "fuzz_inputs.py")
-fuzz = importlib.util.module_from_spec(_spec)
-sys.modules["fuzz_inputs"] = fuzz  # dataclasses look their module up there
-_spec.loader.exec_module(fuzz)
+fuzz = load_script("fuzz_inputs")
 
 
 @pytest.fixture(scope="module")

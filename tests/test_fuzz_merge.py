@@ -7,18 +7,14 @@ merged scene holds each source's own bytes. The long run is recorded in docs/rel
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from scripts_loader import load_script
 
-_spec = importlib.util.spec_from_file_location("fuzz_merge", Path(__file__).resolve().parents[1] / "scripts" / "fuzz_merge.py")
-fuzz = importlib.util.module_from_spec(_spec)
-sys.modules["fuzz_merge"] = fuzz  # dataclasses look their module up there
-_spec.loader.exec_module(fuzz)
+fuzz = load_script("fuzz_merge")
 
 
 @pytest.fixture(scope="module")

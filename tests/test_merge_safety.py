@@ -7,10 +7,8 @@ hard-linked into each, and every case checks that nothing outside OUT changed.""
 from __future__ import annotations
 
 import errno
-import importlib.util
 import os
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,11 +19,9 @@ from brfgs.data import read_scene
 from brfgs.errors import UserError
 from brfgs.workflows import merge_files
 from brfgs.workflows.merge_flights import flight_labels
+from scripts_loader import load_script
 
-_spec = importlib.util.spec_from_file_location("fuzz_merge", Path(__file__).resolve().parents[1] / "scripts" / "fuzz_merge.py")
-fz = importlib.util.module_from_spec(_spec)
-sys.modules["fuzz_merge"] = fz  # dataclasses look their module up there
-_spec.loader.exec_module(fz)
+fz = load_script("fuzz_merge")
 
 
 @pytest.fixture(scope="module")
